@@ -1,0 +1,72 @@
+# The pipeline. `make demo` and `make test` bootstrap everything on a fresh Debian machine:
+# YADE from Debian's `yade` package (apt-get when root), the analysis venv from requirements.txt.
+SHELL := /bin/bash
+PY ?= python3
+VENV := .venv
+VPY := $(VENV)/bin/python
+YADE ?= yade
+export PYTHONHASHSEED := 0
+# one thread for BLAS in tests and sweeps: the machine has 2 cores and runs are parallel already
+export OMP_NUM_THREADS ?= 1
+export OPENBLAS_NUM_THREADS ?= 1
+
+.PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study \
+        bench-dem bench-tracking bench-predict bench-sweep clean help
+
+help:
+	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
+	@echo "make test   - the test suite (installs YADE and the venv when missing)"
+	@echo "make bench-dem | bench-tracking | bench-predict | bench-sweep - benchmarks"
+	@echo "make geometry | facet-study | timestep-study - regenerate committed studies"
+
+setup: venv yade
+
+venv: $(VENV)/.stamp
+
+$(VENV)/.stamp: requirements.txt
+	$(PY) -m venv $(VENV)
+	$(VPY) -m pip install -q --disable-pip-version-check -r requirements.txt
+	touch $@
+
+yade:
+	@if command -v $(YADE) >/dev/null 2>&1; then exit 0; fi; \
+	if [ "$$(id -u)" = "0" ]; then \
+	  echo "installing Debian's yade package (apt-get)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq yade >/dev/null; \
+	else \
+	  echo "YADE is missing. Install it with: sudo apt-get update && sudo apt-get install -y yade" >&2; \
+	  echo "(or set YADE=/path/to/yade; see environment.md)" >&2; exit 1; \
+	fi
+
+test: setup
+	$(VPY) -m pytest -q tests
+
+test-fast: venv
+	$(VPY) -m pytest -q -m "not yade and not slow" tests
+
+geometry: venv
+	$(VPY) -m geometry.jar --out geometry/mm400_25ml.stl
+
+demo: setup
+	$(VPY) -m analysis.demo
+
+facet-study: setup
+	$(VPY) -m analysis.studies.facet_convergence
+
+timestep-study: setup
+	$(VPY) -m analysis.studies.timestep_convergence
+
+bench-dem: setup
+	$(VPY) -m analysis.bench.dem
+
+bench-tracking: venv
+	$(VPY) -m analysis.bench.tracking
+
+bench-predict: venv
+	$(VPY) -m analysis.bench.predict
+
+bench-sweep: setup
+	$(VPY) -m analysis.bench.sweep
+
+clean:
+	rm -rf results/runs/.tmp-* .pytest_cache
