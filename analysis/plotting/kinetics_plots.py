@@ -1,0 +1,104 @@
+"""Plots of the kinetics stage (paper Figures 9-11). Functions take results, ax=None, return ax."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+REGIME_COLOURS = {"powder": "#dbe9f6", "wax": "#fde7c8", "complete": "#dff2d8"}
+
+
+def _ax(ax):
+    if ax is None:
+        import matplotlib.pyplot as plt
+        _, ax = plt.subplots()
+    return ax
+
+
+def plot_ekin_map(inputs: pd.DataFrame, ax=None):
+    """Figure 9: mean kinetic energy E_kin [mJ] vs frequency, one line per ball diameter.
+
+    Parameters
+    ----------
+    inputs : DataFrame - frequency_hz, ball_diameter_m, e_kin_j (and optional measured flag)
+    """
+    ax = _ax(ax)
+    for d, grp in inputs.groupby("ball_diameter_m"):
+        grp = grp.sort_values("frequency_hz")
+        measured = bool(grp["measured"].all()) if "measured" in grp else True
+        ax.plot(grp["frequency_hz"], grp["e_kin_j"] * 1e3, "o-" if measured else "s--",
+                label=f"d = {d * 1e3:.1f} mm" + ("" if measured else " (interpolated)"))
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("E_kin = 1/2 m v_mean^2 [mJ]")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return ax
+
+
+def plot_yield_vs_time(data: pd.DataFrame, fit=None, energy: pd.DataFrame | None = None, ax=None):
+    """Figure 10: yield [%] vs milling time per frequency; with ``fit`` and ``energy`` the model
+    curve of each condition (line, wax ramp, plateau) is drawn too.
+
+    Parameters
+    ----------
+    data : DataFrame - condition_id, frequency_hz, time_min, yield_pct
+    fit : KineticsFit, optional
+    energy : DataFrame, optional - condition_id, e_kin_j, f_col_hz
+    """
+    from analysis.kinetics import predict_yield
+
+    ax = _ax(ax)
+    for i, (cid, grp) in enumerate(data.groupby("condition_id", sort=False)):
+        col = f"C{i}"
+        f = grp["frequency_hz"].iloc[0]
+        ax.plot(grp["time_min"], grp["yield_pct"], "o", color=col, label=f"{f:g} Hz")
+        if fit is not None and energy is not None:
+            r = energy.set_index("condition_id").loc[cid]
+            t = np.linspace(0, grp["time_min"].max() * 1.05, 200)
+            p = predict_yield(fit, r["e_kin_j"], r["f_col_hz"], t)
+            ax.plot(t, p["yield_pct"], "-", color=col, lw=1)
+    ax.set_xlabel("milling time [min]")
+    ax.set_ylabel("monomer yield X [%]")
+    ax.set_ylim(-3, 105)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return ax
+
+
+def plot_yield_vs_energy(data: pd.DataFrame, fit, ax=None, alpha: float = 0.05):
+    """Figure 11: yield vs cumulative energy with the powder line, its confidence and prediction
+    bands, and the regime boundaries as shaded regions.
+
+    Parameters
+    ----------
+    data : DataFrame - e_tot_j, yield_pct, frequency_hz
+    fit : KineticsFit
+    """
+    ax = _ax(ax)
+    e_max = float(data["e_tot_j"].max()) * 1.05
+    e1, e2 = fit.boundaries.powder_wax_j, fit.boundaries.wax_complete_j
+    ax.axvspan(0, e1 / 1e3, color=REGIME_COLOURS["powder"], zorder=0, label="powder")
+    ax.axvspan(e1 / 1e3, e2 / 1e3, color=REGIME_COLOURS["wax"], zorder=0, label="wax")
+    ax.axvspan(e2 / 1e3, e_max / 1e3, color=REGIME_COLOURS["complete"], zorder=0, label="complete")
+    ci = fit.boundaries.ci
+    for name in ("powder_wax_j", "wax_complete_j"):
+        lo, hi = ci.loc[name, "lower"], ci.loc[name, "upper"]
+        if np.isfinite(lo) and np.isfinite(hi):
+            ax.axvspan(lo / 1e3, hi / 1e3, color="0.5", alpha=0.15, zorder=0)
+    g = np.linspace(0, e1, 100)
+    p = fit.line.predict(g, alpha)
+    lv = fit.line.params
+    ax.fill_between(g / 1e3, p["pi_lo"], p["pi_hi"], color="C0", alpha=0.15,
+                    label=f"{100 * (1 - alpha):.0f} % prediction band")
+    ax.fill_between(g / 1e3, p["ci_lo"], p["ci_hi"], color="C0", alpha=0.35,
+                    label=f"{100 * (1 - alpha):.0f} % confidence band")
+    ax.plot(g / 1e3, p["yield_pct"], "C0-",
+            label=f"X = {lv['a_pct_per_kj']:.2f} E - {abs(lv['b_pct']):.2f} (r2 {fit.line.r2:.3f})")
+    for i, (f, grp) in enumerate(data.groupby("frequency_hz")):
+        ax.plot(grp["e_tot_j"] / 1e3, grp["yield_pct"], "o^sD"[i % 4], color=f"C{i + 1}",
+                label=f"{f:g} Hz", mec="k", mew=0.4)
+    ax.set_xlim(0, e_max / 1e3)
+    ax.set_ylim(-5, 105)
+    ax.set_xlabel("cumulative energy E_tot = E_kin f_col t [kJ]")
+    ax.set_ylabel("monomer yield X [%]")
+    ax.legend(fontsize=7, loc="upper left")
+    return ax
