@@ -1,0 +1,774 @@
+"""Which physical effect is missing? Generic effect diagnosis against a measurement dataset.
+
+The model
+---------
+A model is any callable ::
+
+    predict(theta_base: dict[str, float], effects: dict[str, float]) -> pandas.Series
+
+returning the model's MEAN prediction indexed by ``(condition_id, observable)`` (a 2-level
+MultiIndex; extra keys are ignored). ``theta_base`` holds the base (calibratable) parameters, e.g.
+restitution and friction; ``effects`` holds the strength of every candidate effect (the null
+strength switches an effect off). The model's own replicate noise - the DEM twin is chaotic - is
+given separately as ``model_se`` (standard error of the mean prediction per key), see
+:func:`diagnose`. A stochastic ``predict`` should use common random numbers (the same seeds for
+every call), so that differences between calls carry little noise; set ``crn_correlation``
+accordingly (0 = independent seeds per call, 1 = deterministic / perfectly common noise).
+
+The observations
+----------------
+Either a :class:`analysis.measurements.Dataset` (its summary observables, plus yields as
+observables ``'yield_pct@<t>min'``), or a DataFrame with columns condition_id, observable, value,
+sd (e.g. :func:`analysis.measurements.measurement_table`). Each residual's uncertainty is
+``sigma = sqrt(sd**2 + model_se**2)`` and residuals are whitened by it (the "whitened metric").
+
+The method
+----------
+1. *baseline*: the model at the given starting parameters, every effect off.
+2. *calibrated*: the base parameters fitted (bounded Gauss-Newton / trust-region,
+   scipy.optimize.least_squares) with every effect off. Its whitened Jacobian ``J`` (n x p).
+3. For each candidate effect k:
+
+   * signature ``g_k``: finite-difference derivative of every whitened prediction with respect to
+     the strength, at the calibrated base and null strength (step ``effect_step_frac`` of the way
+     to the far bound);
+   * projection: ``g_perp = (I - J J^+) g_k`` removes what a recalibration of the base parameters
+     would absorb; ``absorbed_frac = 1 - |g_perp|^2 / |g_k|^2``;
+   * score test ``S = (g_perp . r)^2 / |g_perp|^2`` (r = whitened residual, measured - model), the
+     linearised strength ``s_lin = null + (g_perp . r) / |g_perp|^2 +- 1 / |g_perp|``;
+   * joint fit of base parameters and strength (bounded), chi2 gain ``delta_chi2`` and its
+     covariance (Gauss-Newton, ``(J_full^T J_full)^-1``): strength +- se, max |correlation| of
+     the strength with a base parameter; BIC gain ``delta_chi2 - ln n``;
+   * identifiability: ``footprint`` = norm of the projected, whitened change of all predictions
+     when the strength goes from null to its far bound, minus the part explained by the FD noise
+     of the twin (``2 (1 - crn_correlation) model_se^2``); ``signature_snr`` = footprint / that
+     noise. An effect with footprint < ``min_footprint`` (default 2 sigma) or snr < ``min_snr``
+     (default 3) cannot be told from noise and is never significant.
+4. Significance: p-value of ``delta_chi2`` under chi2_1 (halved when the null strength sits on a
+   bound - the strength can only move one way - Self & Liang 1987), and, to protect against a
+   residual that is over-dispersed for another reason, the F-test p-value of
+   ``delta_chi2 / (chi2_after / dof_after)``; the larger of the two, Bonferroni-corrected for the
+   number of candidates, must fall below ``alpha``; and BIC must improve.
+5. Verdict: the best significant effect, or when none: "nothing missing" if the calibrated chi2
+   is consistent with its dof (p >= alpha), else a description of the residual's structure
+   (trend with frequency, ball-size split, offset of one observable, single outliers), tested in
+   the same projected way, Bonferroni over the descriptors.
+
+:func:`add_effect` switches the chosen effect on, refits base + strength, and returns before /
+after tables and the chi2/dof staircase (baseline, calibrated, with effect).
+
+References: Self, S.G., Liang, K.-Y. (1987) JASA 82, 605 (boundary LR tests); Rao score test;
+Schwarz (1978) BIC.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import optimize, stats
+
+from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
+                                   Dataset, measurement_table)
+
+EFFECT_KINDS = ("dem", "kinetics")
+_OBS_WORDS = {"v_mean_m_s": "speed", "f_col_hz": "collision frequency", "yield_pct": "yield"}
+
+
+# --------------------------------------------------------------------------- declarations
+
+@dataclass(frozen=True)
+class BaseParameter:
+    """A calibratable base parameter: starting value and bounds (physical units)."""
+
+    name: str
+    value: float
+    lower: float
+    upper: float
+
+    def __post_init__(self):
+        if not (np.isfinite(self.lower) and np.isfinite(self.upper) and self.lower < self.upper):
+            raise ValueError("base parameter %s: bounds must be finite with lower < upper"
+                             % self.name)
+        if not self.lower <= self.value <= self.upper:
+            raise ValueError("base parameter %s: value %g outside [%g, %g]"
+                             % (self.name, self.value, self.lower, self.upper))
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A candidate effect: strength bounds, the null strength (effect off) and its kind.
+
+    kind : 'dem' (acts in the ball dynamics) or 'kinetics' (acts in the yield model)
+    """
+
+    name: str
+    lower: float
+    upper: float
+    null: float = 0.0
+    kind: str = "dem"
+    description: str = ""
+
+    def __post_init__(self):
+        if not (np.isfinite(self.lower) and np.isfinite(self.upper) and self.lower < self.upper):
+            raise ValueError("effect %s: bounds must be finite with lower < upper" % self.name)
+        if not self.lower <= self.null <= self.upper:
+            raise ValueError("effect %s: null strength %g outside [%g, %g]"
+                             % (self.name, self.null, self.lower, self.upper))
+        if self.kind not in EFFECT_KINDS:
+            raise ValueError("effect %s: kind must be one of %s" % (self.name, EFFECT_KINDS))
+
+    @property
+    def far(self) -> float:
+        """The bound farther from the null strength."""
+        return self.upper if self.upper - self.null >= self.null - self.lower else self.lower
+
+    @property
+    def null_on_bound(self) -> bool:
+        return self.null in (self.lower, self.upper)
+
+
+# --------------------------------------------------------------------------- results
+
+@dataclass
+class FitResult:
+    """A bounded least-squares fit in the whitened metric.
+
+    Attributes
+    ----------
+    params : dict name -> value (base parameters, and the effect strength when fitted)
+    stderr : dict name -> standard error (Gauss-Newton, sigmas taken as known)
+    cov : DataFrame, shape (k, k)
+    chi2 : float;  dof : int (n - k)
+    prediction : Series, model mean per key
+    residuals : Series, z = (model - measured) / sigma per key
+    jac : DataFrame, shape (n, k), d(prediction / sigma) / d(param) at the solution
+    at_bound : list of parameter names that ended on a bound
+    """
+
+    params: dict
+    stderr: dict
+    cov: pd.DataFrame
+    chi2: float
+    dof: int
+    prediction: pd.Series
+    residuals: pd.Series
+    jac: pd.DataFrame
+    at_bound: list
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else float("nan")
+
+    @property
+    def p_value(self) -> float:
+        return float(stats.chi2.sf(self.chi2, self.dof)) if self.dof > 0 else float("nan")
+
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame({"value": pd.Series(self.params),
+                             "stderr": pd.Series(self.stderr)})
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose`.
+
+    Attributes
+    ----------
+    table : DataFrame, one row per candidate, ranked (rank 1 first)
+        rank, effect, kind, delta_chi2, score, p_value, p_bonferroni, bic_gain, strength,
+        strength_se, strength_lin, strength_at_bound, signature_norm, projected_norm,
+        absorbed_frac, footprint, signature_snr, corr_base_max, identifiable, significant,
+        chi2_dof_after
+    baseline : FitResult-like stage at the starting parameters (no fit; stderr empty)
+    calibrated : FitResult (base parameters fitted, effects off)
+    fits : dict effect -> FitResult of the joint fit
+    structure : DataFrame of residual-structure tests (descriptor, observable, z_score, p_value,
+        p_bonferroni, significant, words)
+    status : 'effect' | 'effect_partial' | 'nothing_missing' | 'unexplained'
+    best : str or None, the reported effect
+    verdict : str, plain words
+    alpha : float; threshold_delta_chi2 : float (chi2 gain needed at the Bonferroni level)
+    n_predict_calls : int
+    """
+
+    table: pd.DataFrame
+    baseline: FitResult
+    calibrated: FitResult
+    fits: dict
+    structure: pd.DataFrame
+    status: str
+    best: str | None
+    verdict: str
+    alpha: float
+    threshold_delta_chi2: float
+    n_predict_calls: int
+    projected_signatures: pd.DataFrame = field(repr=False, default=None)
+
+    def to_frame(self) -> pd.DataFrame:
+        return self.table.copy()
+
+
+@dataclass
+class AddEffectResult:
+    """Result of :func:`add_effect`.
+
+    Attributes
+    ----------
+    effect : str
+    staircase : DataFrame, rows baseline / calibrated / with <effect>:
+        stage, chi2, dof, chi2_dof, p_value, n_params
+    before, after : FitResult (calibrated without / with the effect)
+    strength, strength_se : float
+    """
+
+    effect: str
+    staircase: pd.DataFrame
+    before: FitResult
+    after: FitResult
+    baseline: FitResult
+    strength: float
+    strength_se: float
+
+    def to_frame(self) -> pd.DataFrame:
+        """Per key: measured, sigma, model and z before (calibrated) and after (with effect)."""
+        b, a = self.before, self.after
+        return pd.DataFrame({"model_calibrated": b.prediction, "z_calibrated": b.residuals,
+                             "model_with_effect": a.prediction, "z_with_effect": a.residuals})
+
+    def summary(self) -> str:
+        s = self.staircase
+        steps = ", ".join("%s %.2f" % (r.stage, r.chi2_dof) for r in s.itertuples())
+        return ("%s switched on: strength %.4g +- %.2g; chi2/dof %s"
+                % (self.effect, self.strength, self.strength_se, steps))
+
+
+# --------------------------------------------------------------------------- the problem
+
+def observations_from_dataset(dataset: Dataset, v_rel_sd=DEFAULT_V_REL_SD,
+                              f_col_sd_hz=DEFAULT_F_COL_SD_HZ,
+                              yield_sd_pct=DEFAULT_YIELD_SD_PCT) -> pd.DataFrame:
+    """Observations table (condition_id, observable, value, sd) of a dataset; yields become
+    observables ``'yield_pct@<t>min'`` (e.g. 'yield_pct@12.5min')."""
+    obs = measurement_table(dataset, v_rel_sd=v_rel_sd, f_col_sd_hz=f_col_sd_hz)
+    obs = obs[["condition_id", "observable", "value", "sd"]]
+    if dataset.yields is not None:
+        y = dataset.yields
+        sd = (y["yield_sd_pct"].to_numpy(float) if "yield_sd_pct" in y.columns
+              else np.full(len(y), np.nan))
+        obs = pd.concat([obs, pd.DataFrame({
+            "condition_id": y["condition_id"].to_numpy(),
+            "observable": ["yield_pct@%gmin" % t for t in y["time_min"]],
+            "value": y["yield_pct"].to_numpy(float),
+            "sd": np.where(np.isfinite(sd), sd, yield_sd_pct)})], ignore_index=True)
+    return obs
+
+
+def model_se_from_predictions(predictions: pd.DataFrame) -> pd.Series:
+    """Standard error sd / sqrt(n_replicates) of a compare-style predictions table, as a Series
+    indexed by (condition_id, observable) for ``diagnose(model_se=...)``."""
+    p = predictions
+    se = p["sd"].to_numpy(float) / np.sqrt(p["n_replicates"].to_numpy(float))
+    return pd.Series(se, index=pd.MultiIndex.from_frame(p[["condition_id", "observable"]]))
+
+
+class _Problem:
+    """Whitened least-squares problem around a black-box ``predict``."""
+
+    def __init__(self, predict, observations, base_params, effects, model_se, fixed_effects,
+                 base_step_frac, conditions):
+        if isinstance(observations, Dataset):
+            conditions = observations.conditions if conditions is None else conditions
+            observations = observations_from_dataset(observations)
+        for col in ("condition_id", "observable", "value", "sd"):
+            if col not in observations.columns:
+                raise ValueError("observations: required column %r is missing" % col)
+        obs = observations.reset_index(drop=True)
+        self.keys = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+        if self.keys.has_duplicates:
+            raise ValueError("observations: duplicate (condition_id, observable) %r"
+                             % (self.keys[self.keys.duplicated()][0],))
+        self.y = obs["value"].to_numpy(float)
+        sd = obs["sd"].to_numpy(float)
+        if not np.all(np.isfinite(self.y)) or not np.all(np.isfinite(sd)) or np.any(sd < 0):
+            raise ValueError("observations: value and sd must be finite, sd >= 0")
+        self.predict = predict
+        self.base = list(base_params)
+        names = [p.name for p in self.base]
+        if len(set(names)) != len(names):
+            raise ValueError("base parameters: duplicate names")
+        self.effects = {e.name: e for e in effects}
+        if len(self.effects) != len(effects):
+            raise ValueError("effects: duplicate names")
+        self.fixed = dict(fixed_effects or {})
+        self.base_step_frac = base_step_frac
+        self.n_calls = 0
+        self._cache = {}
+        self._index_seen, self._indexer = None, None
+        self.conditions = conditions
+        mu0 = self.mu({p.name: p.value for p in self.base}, {})
+        if model_se is None:
+            se = np.zeros_like(self.y)
+        elif np.isscalar(model_se):
+            se = float(model_se) * np.abs(mu0)
+        else:
+            ms = pd.Series(model_se)
+            missing = [k for k in self.keys if k not in ms.index]
+            if missing:
+                raise ValueError("model_se: no value for %r" % (missing[0],))
+            se = ms.reindex(self.keys).to_numpy(float)
+        self.model_se = se
+        self.sd = sd
+        self.sigma = np.sqrt(sd ** 2 + se ** 2)
+        if np.any(self.sigma <= 0):
+            raise ValueError("observations: zero uncertainty (sd and model_se both 0) at %r"
+                             % (self.keys[int(np.argmin(self.sigma))],))
+
+    @property
+    def n(self):
+        return len(self.y)
+
+    def mu(self, theta, effects):
+        """Model mean at base parameters ``theta`` and effect strengths ``effects`` (others null)."""
+        eff = {e.name: e.null for e in self.effects.values()}
+        eff.update(self.fixed)
+        eff.update(effects)
+        key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
+        if key not in self._cache:
+            self.n_calls += 1
+            out = self.predict(dict(theta), dict(eff))
+            if not isinstance(out, pd.Series):
+                raise TypeError("predict must return a pandas Series indexed by "
+                                "(condition_id, observable)")
+            if out.index is not self._index_seen:      # map keys once per index object
+                if not out.index.is_unique:
+                    raise ValueError("predict returned a Series with duplicate keys")
+                indexer = out.index.get_indexer(self.keys)
+                if np.any(indexer < 0):
+                    raise ValueError("predict returned no value for %r"
+                                     % (self.keys[int(np.argmin(indexer))],))
+                self._index_seen, self._indexer = out.index, indexer
+            vals = out.to_numpy(float)[self._indexer]
+            if not np.all(np.isfinite(vals)):
+                raise ValueError("predict returned a non-finite value at %r"
+                                 % (self.keys[int(np.argmin(np.isfinite(vals)))],))
+            self._cache[key] = vals
+        return self._cache[key]
+
+    # ---- fitting in normalised coordinates u in [0, 1]
+    def fit(self, start_theta, effect=None, start_strength=None, max_nfev=200) -> FitResult:
+        """Fit the base parameters (and the strength of ``effect`` when given)."""
+        names = [p.name for p in self.base]
+        lo = np.array([p.lower for p in self.base], float)
+        hi = np.array([p.upper for p in self.base], float)
+        x0 = np.array([start_theta[k] for k in names], float)
+        if effect is not None:
+            e = self.effects[effect]
+            names = names + [effect]
+            lo = np.append(lo, e.lower)
+            hi = np.append(hi, e.upper)
+            x0 = np.append(x0, e.null if start_strength is None else start_strength)
+        span = hi - lo
+        nb = len(self.base)
+
+        def unpack(u):
+            x = lo + span * np.clip(u, 0.0, 1.0)
+            theta = dict(zip(names[:nb], x[:nb]))
+            eff = {effect: x[nb]} if effect is not None else {}
+            return theta, eff
+
+        def fun(u):
+            theta, eff = unpack(u)
+            return (self.y - self.mu(theta, eff)) / self.sigma
+
+        def jac(u):
+            f0 = fun(u)
+            J = np.empty((self.n, len(u)))
+            for j in range(len(u)):
+                h = self.base_step_frac
+                uj = u.copy()
+                uj[j] = u[j] + h if u[j] + h <= 1.0 else u[j] - h
+                J[:, j] = (fun(uj) - f0) / (uj[j] - u[j])
+            return J
+
+        u0 = np.clip((x0 - lo) / span, 0.0, 1.0)
+        sol = optimize.least_squares(fun, u0, jac=jac, bounds=(0.0, 1.0), method="trf",
+                                     x_scale=1.0, xtol=1e-10, ftol=1e-12, gtol=1e-10,
+                                     max_nfev=max_nfev)
+        u = np.clip(sol.x, 0.0, 1.0)
+        theta, eff = unpack(u)
+        mu = self.mu(theta, eff)
+        Ju = -jac(u)                       # d(mu / sigma) / du
+        Jx = Ju / span                     # per physical unit
+        cov = np.linalg.pinv(Jx.T @ Jx)
+        x = lo + span * u
+        params = dict(zip(names, x))
+        stderr = dict(zip(names, np.sqrt(np.maximum(np.diag(cov), 0.0))))
+        z = (mu - self.y) / self.sigma
+        at_bound = [nm for nm, ui in zip(names, u) if ui <= 1e-9 or ui >= 1 - 1e-9]
+        return FitResult(params=params, stderr=stderr,
+                         cov=pd.DataFrame(cov, index=names, columns=names),
+                         chi2=float(np.sum(z ** 2)), dof=self.n - len(names),
+                         prediction=pd.Series(mu, index=self.keys),
+                         residuals=pd.Series(z, index=self.keys),
+                         jac=pd.DataFrame(Jx, index=self.keys, columns=names), at_bound=at_bound)
+
+    def stage(self, theta, eff=None) -> FitResult:
+        """Model at fixed parameters (no fit): a FitResult with dof = n."""
+        mu = self.mu(theta, eff or {})
+        z = (mu - self.y) / self.sigma
+        return FitResult(params=dict(theta), stderr={}, cov=pd.DataFrame(),
+                         chi2=float(np.sum(z ** 2)), dof=self.n,
+                         prediction=pd.Series(mu, index=self.keys),
+                         residuals=pd.Series(z, index=self.keys), jac=pd.DataFrame(),
+                         at_bound=[])
+
+
+def _project_out(J, v):
+    """Component of v orthogonal to the columns of J (least squares), and the absorbed part."""
+    if J.size == 0:
+        return v.copy()
+    coef, *_ = np.linalg.lstsq(J, v, rcond=None)
+    return v - J @ coef
+
+
+# --------------------------------------------------------------------------- diagnosis
+
+def diagnose(predict, observations, base_params, effects, *, model_se=None,
+             crn_correlation: float = 1.0, fixed_effects: dict | None = None,
+             conditions: pd.DataFrame | None = None, alpha: float = 0.01,
+             min_footprint: float = 2.0, min_snr: float = 3.0,
+             effect_step_frac: float = 0.25, base_step_frac: float = 1e-3,
+             structure: bool = True) -> Diagnosis:
+    """Rank candidate effects by how well each explains the residual after calibration.
+
+    Parameters
+    ----------
+    predict : callable (theta_base: dict, effects: dict) -> Series
+        model mean, indexed by (condition_id, observable)
+    observations : Dataset or DataFrame (condition_id, observable, value, sd)
+    base_params : list of BaseParameter
+        calibratable parameters (starting values = the "baseline" stage)
+    effects : list of Effect
+        candidates (including decoys); each tested alone with the base refitted
+    model_se : None, float or Series
+        the twin's replicate noise: standard error of its mean prediction. A float is read as a
+        fraction of the baseline prediction; a Series is indexed by (condition_id, observable)
+        (see :func:`model_se_from_predictions`). None: a deterministic model.
+    crn_correlation : float in [0, 1]
+        correlation of the twin's noise between two predict calls (1: deterministic or common
+        random numbers; 0: independent seeds) - sets the noise of finite differences
+    fixed_effects : dict or None
+        effects held at a given strength throughout (e.g. one already added)
+    conditions : DataFrame or None
+        condition_id, frequency_hz, ball_diameter_mm for the residual-structure description
+        (taken from the Dataset when one is given)
+    alpha : float
+        family-wise significance level (Bonferroni over the candidates)
+    min_footprint : float
+        smallest noise-corrected projected footprint [sigma] for an identifiable effect
+    min_snr : float
+        smallest footprint / FD-noise ratio for an identifiable effect
+    effect_step_frac : float
+        FD step of the signature, as a fraction of the way from null to the far bound
+    base_step_frac : float
+        FD step for the base-parameter Jacobian, fraction of each parameter's range
+    structure : bool
+        run the residual-structure tests
+
+    Returns
+    -------
+    Diagnosis
+    """
+    prob = _Problem(predict, observations, base_params, effects, model_se, fixed_effects,
+                    base_step_frac, conditions)
+    theta0 = {p.name: p.value for p in prob.base}
+    baseline = prob.stage(theta0)
+    cal = prob.fit(theta0)
+    theta_c = {k: cal.params[k] for k in theta0}
+    mu_c = cal.prediction.to_numpy()
+    r = -cal.residuals.to_numpy()            # (measured - model) / sigma
+    J = cal.jac.to_numpy()
+    n, p = prob.n, len(prob.base)
+    K = len(prob.effects)
+    noise_var = 2.0 * (1.0 - crn_correlation) * (prob.model_se / prob.sigma) ** 2
+    proj_noise = float(np.sum(noise_var)) * max(n - p, 1) / n
+
+    rows, fits, sigs = [], {}, {}
+    for name, e in prob.effects.items():
+        travel = e.far - e.null
+        h = effect_step_frac * travel
+        g = (prob.mu(theta_c, {name: e.null + h}) - prob.mu(theta_c, {name: e.null})) / h
+        gw = g / prob.sigma
+        gp = _project_out(J, gw)
+        sigs[name] = gp
+        vfar = (prob.mu(theta_c, {name: e.far}) - prob.mu(theta_c, {name: e.null})) / prob.sigma
+        vp = _project_out(J, vfar)
+        fp2 = float(vp @ vp)
+        footprint = math.sqrt(max(fp2 - proj_noise, 0.0))
+        snr = footprint / math.sqrt(proj_noise) if proj_noise > 0 else math.inf
+        gn2, gpn2 = float(gw @ gw), float(gp @ gp)
+        U = float(gp @ r)
+        if gpn2 > 0:
+            s_lin = e.null + U / gpn2
+            score = U * U / gpn2
+        else:
+            s_lin, score = e.null, 0.0
+        # one-sided: a strength that cannot move the wanted way gives no score
+        if (s_lin - e.null) * travel < 0 and e.null_on_bound:
+            score = 0.0
+        start = float(np.clip(s_lin, e.lower, e.upper))
+        fit = prob.fit(theta_c, effect=name, start_strength=start)
+        if start != e.null:   # also start from null; keep the better optimum
+            fit0 = prob.fit(theta_c, effect=name, start_strength=e.null + 0.1 * h)
+            if fit0.chi2 < fit.chi2:
+                fit = fit0
+        fits[name] = fit
+        d = max(cal.chi2 - fit.chi2, 0.0)
+        dof_after = max(fit.dof, 1)
+        p_lr = float(stats.chi2.sf(d, 1)) if d > 0 else 1.0
+        if e.null_on_bound:
+            p_lr = 0.5 * p_lr if d > 0 else 1.0
+        F = d / max(fit.chi2 / dof_after, 1e-300)
+        p_f = float(stats.f.sf(F, 1, dof_after)) if d > 0 else 1.0
+        if e.null_on_bound:
+            p_f = 0.5 * p_f if d > 0 else 1.0
+        pv = max(p_lr, p_f)
+        cov = fit.cov.to_numpy()
+        sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+        corr = cov[-1, :-1] / (sd[-1] * sd[:-1]) if p else np.zeros(0)
+        identifiable = footprint >= min_footprint and snr >= min_snr
+        p_bonf = min(1.0, K * pv)
+        bic_gain = d - math.log(n)
+        rows.append({
+            "effect": name, "kind": e.kind, "delta_chi2": d, "score": score,
+            "p_value": pv, "p_bonferroni": p_bonf, "bic_gain": bic_gain,
+            "strength": fit.params[name], "strength_se": fit.stderr[name],
+            "strength_lin": s_lin, "strength_lin_se": (1.0 / math.sqrt(gpn2) if gpn2 > 0
+                                                      else math.inf),
+            "strength_at_bound": (name in fit.at_bound
+                                  and abs(fit.params[name] - e.null) > 1e-9 * abs(travel)),
+            "signature_norm": math.sqrt(gn2), "projected_norm": math.sqrt(gpn2),
+            "absorbed_frac": 1.0 - gpn2 / gn2 if gn2 > 0 else float("nan"),
+            "footprint": footprint, "signature_snr": snr,
+            "corr_base_max": float(np.max(np.abs(corr))) if corr.size else 0.0,
+            "identifiable": identifiable,
+            "significant": bool(identifiable and p_bonf < alpha and bic_gain > 0),
+            "chi2_dof_after": fit.chi2_dof})
+    table = pd.DataFrame(rows)
+    table = table.sort_values(["identifiable", "delta_chi2"], ascending=[False, False],
+                              kind="stable").reset_index(drop=True)
+    table.insert(0, "rank", np.arange(1, len(table) + 1))
+    threshold = float(stats.chi2.isf(2.0 * alpha / max(K, 1), 1))
+
+    struct = (residual_structure(cal, prob.conditions, alpha=alpha) if structure
+              else pd.DataFrame())
+    status, best, verdict = _verdict(table, cal, fits, struct, sigs, alpha, prob)
+    return Diagnosis(table=table, baseline=baseline, calibrated=cal, fits=fits, structure=struct,
+                     status=status, best=best, verdict=verdict, alpha=alpha,
+                     threshold_delta_chi2=threshold, n_predict_calls=prob.n_calls,
+                     projected_signatures=pd.DataFrame(sigs, index=prob.keys))
+
+
+def _verdict(table, cal, fits, struct, sigs, alpha, prob):
+    sig = table.loc[table["significant"]]
+    gof = cal.p_value
+    head = "calibrated chi2/dof = %.2f (dof %d, p = %.2g)" % (cal.chi2_dof, cal.dof, gof)
+    struct_words = ([w for w in struct.loc[struct["significant"], "words"]]
+                    if len(struct) else [])
+    if len(sig):
+        b = sig.iloc[0]
+        fit = fits[b["effect"]]
+        words = ("missing effect: %s (%s), strength %.3g +- %.2g; chi2/dof %.2f -> %.2f "
+                 "(chi2 gain %.1f, Bonferroni p = %.2g)"
+                 % (b["effect"], b["kind"], b["strength"], b["strength_se"], cal.chi2_dof,
+                    fit.chi2_dof, b["delta_chi2"], b["p_bonferroni"]))
+        if b["strength_at_bound"]:
+            words += "; the strength sits on its bound - the effect may be stronger than allowed"
+        if len(sig) > 1:
+            o = sig.iloc[1]
+            a, c = sigs[b["effect"]], sigs[o["effect"]]
+            cos = abs(float(a @ c)) / math.sqrt(float(a @ a) * float(c @ c))
+            if b["delta_chi2"] - o["delta_chi2"] < 2.0:
+                words += ("; %s explains it about as well (chi2 gain %.1f, signature overlap "
+                          "%.2f) - the data cannot tell them apart"
+                          % (o["effect"], o["delta_chi2"], cos))
+        if fit.p_value >= alpha:
+            return "effect", b["effect"], "%s; %s" % (words, head)
+        rest = "; the residual after it is still beyond noise (chi2/dof %.2f, p = %.2g)" % (
+            fit.chi2_dof, fit.p_value)
+        return "effect_partial", b["effect"], "%s; %s%s" % (words, head, rest) + (
+            (": " + "; ".join(struct_words)) if struct_words else "")
+    if gof >= alpha:
+        return "nothing_missing", None, ("nothing missing: %s is consistent with noise; no "
+                                         "candidate effect is significant" % head)
+    words = ("unexplained misfit: %s, and no candidate effect explains it beyond noise"
+             % head)
+    if struct_words:
+        words += "; residual structure: " + "; ".join(struct_words)
+    else:
+        z = cal.residuals
+        top = z.abs().sort_values(ascending=False).head(3)
+        words += ("; no simple structure (frequency trend, ball-size split, offset, single "
+                  "outlier) is significant; largest residuals: "
+                  + ", ".join("%s %s z=%+.1f" % (k[0], k[1], z[k]) for k in top.index))
+    return "unexplained", None, words
+
+
+# --------------------------------------------------------------------------- residual structure
+
+def residual_structure(fit: FitResult, conditions: pd.DataFrame | None,
+                       alpha: float = 0.01, max_terms: int = 3,
+                       min_unabsorbed: float = 0.3) -> pd.DataFrame:
+    """Describe the calibrated residual by simple shapes, chosen greedily like effect signatures.
+
+    Descriptors, per observable: offset (all conditions), linear trend with frequency, linear
+    trend with ball diameter (= the ball-size split for two sizes); and every single point as a
+    possible outlier. Each descriptor is projected onto the orthogonal complement of the base
+    Jacobian (and of the descriptors already chosen); a descriptor that the base parameters
+    absorb to more than ``1 - min_unabsorbed`` of its norm is not testable and skipped. Forward
+    selection: the descriptor with the largest projected score is tested (two-sided normal,
+    Bonferroni over all descriptors); if significant it is kept and the next one is sought in
+    the residual with it removed, up to ``max_terms``.
+
+    Returns
+    -------
+    DataFrame, one row per step (the last row is the first non-significant candidate):
+        step, descriptor, observable, condition_id, z_score (signed: + means the model is
+        high), p_value, p_bonferroni, significant, words
+    """
+    z = fit.residuals
+    keys = z.index
+    zv = z.to_numpy().astype(float)
+    J = fit.jac.to_numpy() if fit.jac.size else np.zeros((len(zv), 0))
+    obs = keys.get_level_values(1)
+    cids = keys.get_level_values(0)
+    freq = diam = None
+    if conditions is not None:
+        c = conditions.set_index("condition_id")
+        freq = np.array([float(c.at[k, "frequency_hz"]) if k in c.index else np.nan for k in cids])
+        diam = np.array([float(c.at[k, "ball_diameter_mm"]) if k in c.index else np.nan
+                         for k in cids])
+    base_obs = np.array([o.split("@")[0] for o in obs])
+    labels = {}
+    if freq is not None:
+        labels = {k: "%g mm ball at %g Hz" % (dd, ff) for k, ff, dd in zip(cids, freq, diam)
+                  if np.isfinite(ff) and np.isfinite(dd)}
+    descs = []
+    for o in dict.fromkeys(base_obs):
+        m = base_obs == o
+        descs.append(("offset", o, None, m.astype(float)))
+        if freq is not None and len(np.unique(freq[m])) > 1:
+            descs.append(("frequency trend", o, None,
+                          np.where(m, freq - np.nanmean(freq[m]), 0.0)))
+        if diam is not None and len(np.unique(diam[m])) > 1:
+            descs.append(("ball-size split", o, None,
+                          np.where(m, diam - np.nanmean(diam[m]), 0.0)))
+    for i in range(len(zv)):
+        e = np.zeros(len(zv))
+        e[i] = 1.0
+        descs.append(("outlier", base_obs[i], cids[i], e))
+    descs = [(k, o, c_, np.nan_to_num(d)) for k, o, c_, d in descs]
+    testable = []
+    for k, o, c_, d in descs:
+        dp = _project_out(J, d)
+        if float(dp @ dp) >= min_unabsorbed ** 2 * float(d @ d) > 0:
+            testable.append((k, o, c_, d))
+    n_tests = max(len(testable), 1)
+    out, chosen = [], []
+    for step in range(1, max_terms + 1):
+        A = np.column_stack([J] + [d for *_, d in chosen]) if (J.size or chosen) else J
+        r = _project_out(A, zv) if A.size else zv
+        best = None
+        for k, o, c_, d in testable:
+            if any(d is cd for *_, cd in chosen):
+                continue
+            dp = _project_out(A, d) if A.size else d
+            nn = float(dp @ dp)
+            if nn < 1e-12 * float(d @ d):
+                continue
+            sc = float(dp @ r) / math.sqrt(nn)
+            if best is None or abs(sc) > abs(best[4]):
+                best = (k, o, c_, d, sc)
+        if best is None:
+            break
+        k, o, c_, d, sc = best
+        p = float(2 * stats.norm.sf(abs(sc)))
+        pb = min(1.0, n_tests * p)
+        out.append({"step": step, "descriptor": k, "observable": o, "condition_id": c_,
+                    "z_score": sc, "p_value": p, "p_bonferroni": pb,
+                    "significant": pb < alpha,
+                    "words": _structure_words(k, o, labels.get(c_, c_), sc)})
+        if pb >= alpha:
+            break
+        chosen.append((k, o, c_, d))
+    return pd.DataFrame(out, columns=["step", "descriptor", "observable", "condition_id",
+                                      "z_score", "p_value", "p_bonferroni", "significant",
+                                      "words"])
+
+
+def _structure_words(kind, o, cid, s):
+    word = _OBS_WORDS.get(o, o)
+    side = "high" if s > 0 else "low"
+    if kind == "offset":
+        return "%s is %s at all conditions (%.1f sigma)" % (word, side, abs(s))
+    if kind == "frequency trend":
+        return ("%s residual trends with frequency: the model is increasingly %s toward high "
+                "frequency (%.1f sigma)" % (word, side, abs(s)))
+    if kind == "ball-size split":
+        return ("%s residual splits by ball size: the model is %s for the larger ball relative "
+                "to the smaller (%.1f sigma)" % (word, side, abs(s)))
+    return "one outlier: %s, %s, model %s (%.1f sigma)" % (cid, word, side, abs(s))
+
+
+# --------------------------------------------------------------------------- add an effect
+
+def add_effect(predict, observations, base_params, effects, name: str, *, model_se=None,
+               fixed_effects: dict | None = None, start_strength: float | None = None,
+               base_step_frac: float = 1e-3) -> AddEffectResult:
+    """Switch effect ``name`` on: refit base parameters and its strength jointly.
+
+    Parameters are those of :func:`diagnose`; ``start_strength`` defaults to the midpoint
+    between null and the far bound (also tried: the null side, the better optimum is kept).
+
+    Returns
+    -------
+    AddEffectResult : staircase of chi2/dof (baseline, calibrated, with <name>), before/after fits
+    """
+    prob = _Problem(predict, observations, base_params, effects, model_se, fixed_effects,
+                    base_step_frac, None)
+    if name not in prob.effects:
+        raise ValueError("unknown effect %r (candidates: %s)" % (name, ", ".join(prob.effects)))
+    e = prob.effects[name]
+    theta0 = {p.name: p.value for p in prob.base}
+    baseline = prob.stage(theta0)
+    before = prob.fit(theta0)
+    theta_c = {k: before.params[k] for k in theta0}
+    starts = [0.5 * (e.null + e.far) if start_strength is None else start_strength,
+              e.null + 0.05 * (e.far - e.null)]
+    after = min((prob.fit(theta_c, effect=name, start_strength=s) for s in starts),
+                key=lambda f: f.chi2)
+    stages = [("baseline", baseline, 0), ("calibrated", before, len(prob.base)),
+              ("with %s" % name, after, len(prob.base) + 1)]
+    stair = pd.DataFrame([{"stage": s, "chi2": f.chi2, "dof": f.dof, "chi2_dof": f.chi2_dof,
+                           "p_value": f.p_value, "n_params": k} for s, f, k in stages])
+    return AddEffectResult(effect=name, staircase=stair, before=before, after=after,
+                           baseline=baseline, strength=after.params[name],
+                           strength_se=after.stderr[name])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(
+        description="Effect diagnosis is a library stage: call analysis.diagnose.diagnose("
+        "predict, dataset, base_params, effects, model_se=...) with the twin's predict "
+        "function (see the module docstring). This CLI prints the method summary.")
+    ap.parse_args(argv)
+    print(__doc__)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

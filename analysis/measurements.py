@@ -1,0 +1,542 @@
+"""Measurement datasets: load, validate and write ``data/measurements/<name>/``.
+
+A dataset is what a user brings to compare the twin with (DESIGN.md, "Measurement dataset"):
+
+==========================  =====================================================  ========
+file                        columns                                                needed
+==========================  =====================================================  ========
+dataset.json                name, description, source, velocity_frame (lab|jar)    yes
+conditions.csv              condition_id, frequency_hz, ball_diameter_mm           yes
+                            [amplitude_mm, n_balls, fill_g]
+summary.csv                 condition_id, v_mean_m_s, v_mean_sd_m_s, f_col_hz,      yes
+                            f_col_sd_hz (sd cells may be empty)
+tracks/<condition_id>.csv   t_s, x_m, y_m (camera plane, x along the jar axis)     no
+videos/<condition_id>.*     + videos/video.json: fps, ball_diameter_px or m_per_px  no
+yields.csv                  condition_id, time_min, yield_pct [phase]              no
+==========================  =====================================================  ========
+
+Units sit in the column names. Unknown columns are kept and ignored. Any violation of the
+contract (missing required column, a column carrying the wrong unit such as ``v_mean_mm_s`` or
+``frequency_rpm``, an empty or non-numeric or NaN cell in a required column, a negative
+frequency, a duplicate or unknown ``condition_id``) raises ONE :class:`DatasetError` that names
+the file, the row and the column.
+
+Row numbers in messages count data rows from 1; the file line is ``row + 1`` (line 1 is the
+header).
+
+Default measurement uncertainty
+-------------------------------
+Empty sd cells are reported by :attr:`Dataset.missing_sd` and replaced in
+:func:`measurement_table` by documented defaults (parameters of that function):
+
+* ``v_rel_sd = 0.015``: 1.5 % of the measured mean speed. Single-ball tracking at 2134 fps with the
+  ball diameter as length scale gives a scale error of about 1 % (one pixel on ~70 px) plus
+  frame-to-frame scatter; 1.5 % is a deliberately modest figure.
+* ``f_col_sd_hz = 1.0``: one collision per second (the count over a 0.5 s record is an integer
+  divided by the record length, +-2 /s; 1 /s is its standard uncertainty for a uniform rounding).
+* ``yield_sd_pct = 2.0``: two percentage points for yields (when yields.csv has no
+  ``yield_sd_pct`` column).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: default relative sd of the measured mean speed when v_mean_sd_m_s is empty
+DEFAULT_V_REL_SD = 0.015
+#: default sd of the measured collision frequency [1/s] when f_col_sd_hz is empty
+DEFAULT_F_COL_SD_HZ = 1.0
+#: default sd of a measured yield [percentage points]
+DEFAULT_YIELD_SD_PCT = 2.0
+
+#: observables of summary.csv: observable name -> sd column
+SUMMARY_OBSERVABLES = {"v_mean_m_s": "v_mean_sd_m_s", "f_col_hz": "f_col_sd_hz"}
+
+VELOCITY_FRAMES = ("lab", "jar")
+
+# unit suffix tokens recognised when looking for a column that carries the wrong unit
+_UNIT_TOKENS = {
+    "m", "mm", "cm", "um", "km", "in", "inch", "px", "m_s", "mm_s", "cm_s", "km_h", "m_min",
+    "mm_min", "hz", "khz", "rpm", "rps", "1_s", "per_s", "rad_s", "s", "ms", "us", "min", "h",
+    "hr", "pct", "percent", "frac", "fraction", "g", "kg", "mg", "n", "j", "kj",
+}
+
+# required and optional columns: name -> (kind, rule); kind 'float', 'int', 'str'
+# rules: 'pos' (> 0), 'nonneg' (>= 0), 'any' (finite), 'pct' (0..100)
+_CONDITIONS_REQUIRED = {"condition_id": "id", "frequency_hz": "pos", "ball_diameter_mm": "pos"}
+_CONDITIONS_OPTIONAL = {"amplitude_mm": "pos", "n_balls": "posint", "fill_g": "nonneg"}
+_SUMMARY_REQUIRED = {"condition_id": "id", "v_mean_m_s": "nonneg", "f_col_hz": "nonneg"}
+_SUMMARY_SD = {"v_mean_sd_m_s": "nonneg", "f_col_sd_hz": "nonneg"}  # required columns, empty cells ok
+_TRACK_REQUIRED = {"t_s": "any", "x_m": "any", "y_m": "any"}
+_YIELDS_REQUIRED = {"condition_id": "id", "time_min": "nonneg", "yield_pct": "pct"}
+_YIELDS_OPTIONAL = {"yield_sd_pct": "nonneg"}
+
+_RULE_TEXT = {"pos": "must be > 0", "nonneg": "must be >= 0", "posint": "must be a positive integer",
+              "pct": "must lie in [0, 100]", "any": "must be finite"}
+
+
+class DatasetError(ValueError):
+    """A measurement dataset violates the contract. The message names file, row and column."""
+
+
+@dataclass
+class Dataset:
+    """A validated measurement dataset.
+
+    Attributes
+    ----------
+    name, description, source : str
+        from dataset.json
+    velocity_frame : {'lab', 'jar'}
+        frame in which v_mean_m_s (and tracks) are given
+    conditions : DataFrame, shape (n_conditions, >= 3)
+        condition_id, frequency_hz, ball_diameter_mm [, amplitude_mm, n_balls, fill_g, ...];
+        unknown columns kept as they were read (strings)
+    summary : DataFrame, shape (n_summary, >= 5)
+        condition_id, v_mean_m_s, v_mean_sd_m_s, f_col_hz, f_col_sd_hz (NaN where empty)
+    tracks : dict[str, DataFrame]
+        condition_id -> t_s, x_m, y_m (camera plane)
+    video : dict or None
+        videos/video.json (fps, ball_diameter_px or m_per_px)
+    video_files : dict[str, Path]
+        condition_id -> video file
+    yields : DataFrame or None
+        condition_id, time_min, yield_pct [, phase, yield_sd_pct]
+    meta : dict
+        the whole dataset.json
+    path : Path or None
+        folder the dataset was read from
+    """
+
+    name: str
+    description: str
+    source: str
+    velocity_frame: str
+    conditions: pd.DataFrame
+    summary: pd.DataFrame
+    tracks: dict = field(default_factory=dict)
+    video: dict | None = None
+    video_files: dict = field(default_factory=dict)
+    yields: pd.DataFrame | None = None
+    meta: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    @property
+    def condition_ids(self) -> list:
+        """Condition ids in file order."""
+        return list(self.conditions["condition_id"])
+
+    @property
+    def missing_sd(self) -> dict:
+        """sd columns with empty cells: {sd column: [condition_id, ...]} (only non-empty lists)."""
+        out = {}
+        for col in _SUMMARY_SD:
+            ids = list(self.summary.loc[self.summary[col].isna(), "condition_id"])
+            if ids:
+                out[col] = ids
+        return out
+
+    def condition_label(self, condition_id) -> str:
+        """Plain-words label, e.g. '20.6 mm ball at 22.5 Hz'."""
+        row = self.conditions.set_index("condition_id").loc[condition_id]
+        return "%g mm ball at %g Hz" % (row["ball_diameter_mm"], row["frequency_hz"])
+
+
+# --------------------------------------------------------------------------- validation helpers
+
+def _where(fname, row=None, col=None):
+    parts = [str(fname)]
+    if row is not None:
+        parts.append("row %d (line %d)" % (row, row + 1))
+    if col is not None:
+        parts.append("column %r" % col)
+    return ", ".join(parts)
+
+
+def _base_and_unit(col):
+    """Split 'v_mean_mm_s' -> ('v_mean', 'mm_s') when the tail is a unit token, else None."""
+    parts = col.split("_")
+    for k in range(1, len(parts)):
+        tail = "_".join(parts[k:])
+        if tail in _UNIT_TOKENS:
+            return "_".join(parts[:k]), tail
+    return None
+
+
+def _check_columns(df, fname, required):
+    """Raise DatasetError if a required column is missing (naming a wrong-unit lookalike)."""
+    cols = list(df.columns)
+    for req in required:
+        if req in cols:
+            continue
+        split = _base_and_unit(req)
+        if split is not None:
+            base, unit = split
+            for c in cols:
+                other = _base_and_unit(c)
+                if c == base:
+                    raise DatasetError("%s: column %r carries no unit; the contract needs %r [%s]"
+                                       % (fname, c, req, unit.replace("_", "/")))
+                if other is not None and other[0] == base and other[1] != unit:
+                    raise DatasetError(
+                        "%s: column %r has the wrong unit (%s); the contract needs %r [%s] - "
+                        "convert the values and rename the column"
+                        % (fname, c, other[1].replace("_", "/"), req, unit.replace("_", "/")))
+        raise DatasetError("%s: required column %r is missing (columns found: %s)"
+                           % (fname, req, ", ".join(cols) or "none"))
+    dup = [c for c in cols if cols.count(c) > 1]
+    if dup:
+        raise DatasetError("%s: column %r appears more than once" % (fname, dup[0]))
+
+
+def _parse_number(text, fname, row, col, rule, allow_empty):
+    s = "" if text is None else str(text).strip()
+    if s == "" or (isinstance(text, float) and math.isnan(text)):
+        if allow_empty:
+            return float("nan")
+        raise DatasetError("%s: empty cell (a number is required)" % _where(fname, row, col))
+    try:
+        val = float(s)
+    except ValueError:
+        raise DatasetError("%s: %r is not a number" % (_where(fname, row, col), s)) from None
+    if not math.isfinite(val):
+        raise DatasetError("%s: value is %s (a finite number is required)"
+                           % (_where(fname, row, col), s))
+    bad = ((rule == "pos" and val <= 0) or (rule == "nonneg" and val < 0)
+           or (rule == "pct" and not 0.0 <= val <= 100.0)
+           or (rule == "posint" and (val < 1 or val != int(val))))
+    if bad:
+        what = "negative frequency " if col.startswith("frequency") and val < 0 else "value "
+        raise DatasetError("%s: %s%g %s" % (_where(fname, row, col), what, val, _RULE_TEXT[rule]))
+    return val
+
+
+def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids=None,
+                    unique_ids=False):
+    """Validate a table read as strings; return a copy with numeric columns converted.
+
+    Parameters
+    ----------
+    df : DataFrame of str
+    fname : str, file name used in messages
+    required : dict column -> rule; optional : dict column -> rule (empty cells allowed)
+    empty_ok : dict column -> rule; required columns whose cells may be empty
+    known_ids : set or None; condition ids that must contain every row's condition_id
+    unique_ids : bool; condition_id must not repeat
+    """
+    optional = optional or {}
+    empty_ok = empty_ok or {}
+    _check_columns(df, fname, list(required) + list(empty_ok))
+    if len(df) == 0:
+        raise DatasetError("%s: no data rows" % fname)
+    out = df.copy()
+    seen = {}
+    for col, rule in list(required.items()) + list(empty_ok.items()) + list(optional.items()):
+        if col not in df.columns:
+            continue
+        allow_empty = col in empty_ok or col in optional
+        if rule == "id":
+            vals = []
+            for i, v in enumerate(df[col], start=1):
+                s = "" if v is None else str(v).strip()
+                if s == "":
+                    raise DatasetError("%s: empty condition_id" % _where(fname, i, col))
+                if unique_ids:
+                    if s in seen:
+                        raise DatasetError("%s: duplicate condition_id %r (first at row %d)"
+                                           % (_where(fname, i, col), s, seen[s]))
+                    seen[s] = i
+                if known_ids is not None and s not in known_ids:
+                    raise DatasetError("%s: unknown condition_id %r (not in conditions.csv)"
+                                       % (_where(fname, i, col), s))
+                vals.append(s)
+            out[col] = vals
+            continue
+        vals = [_parse_number(v, fname, i, col, rule, allow_empty)
+                for i, v in enumerate(df[col], start=1)]
+        out[col] = np.asarray(vals, dtype=float)
+        if rule == "posint" and not np.isnan(out[col]).any():
+            out[col] = out[col].astype(int)
+    return out
+
+
+def _read_csv(path, fname):
+    try:
+        return pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except FileNotFoundError:
+        raise DatasetError("%s: file is missing" % fname) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise DatasetError("%s: malformed CSV (%s)" % (fname, str(exc).strip().splitlines()[-1]))
+
+
+def _validate_meta(meta, fname="dataset.json"):
+    if not isinstance(meta, dict):
+        raise DatasetError("%s: must hold a JSON object" % fname)
+    for key in ("name", "description", "source", "velocity_frame"):
+        if key not in meta:
+            raise DatasetError("%s: required key %r is missing" % (fname, key))
+        if not isinstance(meta[key], str):
+            raise DatasetError("%s: key %r must be a string" % (fname, key))
+    if meta["velocity_frame"] not in VELOCITY_FRAMES:
+        raise DatasetError("%s: velocity_frame must be 'lab' or 'jar', got %r"
+                           % (fname, meta["velocity_frame"]))
+
+
+def _validate_track(df, fname):
+    out = _validate_table(df, fname, _TRACK_REQUIRED)
+    t = out["t_s"].to_numpy()
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        raise DatasetError("%s: t_s must increase strictly (it does not after row %d)"
+                           % (_where(fname, int(bad[0]) + 2, "t_s"), int(bad[0]) + 1))
+    return out
+
+
+def _validate_video(meta, fname="videos/video.json"):
+    if not isinstance(meta, dict):
+        raise DatasetError("%s: must hold a JSON object" % fname)
+    if "fps" not in meta:
+        raise DatasetError("%s: required key 'fps' is missing" % fname)
+    if "ball_diameter_px" not in meta and "m_per_px" not in meta:
+        raise DatasetError("%s: needs 'ball_diameter_px' or 'm_per_px'" % fname)
+    for key in ("fps", "ball_diameter_px", "m_per_px"):
+        if key in meta:
+            v = meta[key]
+            if (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)
+                    or v <= 0):
+                raise DatasetError("%s: %r must be a positive number, got %r" % (fname, key, v))
+
+
+def validate(dataset: Dataset) -> Dataset:
+    """Validate an in-memory :class:`Dataset` against the contract; return a normalised copy.
+
+    Used by :func:`write_dataset` (generators build a Dataset from frames) and by
+    :func:`load_dataset`. Raises :class:`DatasetError`.
+    """
+    meta = dict(dataset.meta)
+    meta.update(name=dataset.name, description=dataset.description, source=dataset.source,
+                velocity_frame=dataset.velocity_frame)
+    _validate_meta(meta)
+    cond = _validate_table(_as_str(dataset.conditions), "conditions.csv", _CONDITIONS_REQUIRED,
+                           _CONDITIONS_OPTIONAL, unique_ids=True)
+    ids = set(cond["condition_id"])
+    summ = _validate_table(_as_str(dataset.summary), "summary.csv", _SUMMARY_REQUIRED,
+                           empty_ok=_SUMMARY_SD, known_ids=ids, unique_ids=True)
+    tracks = {}
+    for cid, tr in dataset.tracks.items():
+        fname = "tracks/%s.csv" % cid
+        if cid not in ids:
+            raise DatasetError("%s: unknown condition_id %r (not in conditions.csv)" % (fname, cid))
+        tracks[cid] = _validate_track(_as_str(tr), fname)
+    if dataset.video is not None:
+        _validate_video(dataset.video)
+    for cid in dataset.video_files:
+        if cid not in ids:
+            raise DatasetError("videos/%s: unknown condition_id %r (not in conditions.csv)"
+                               % (Path(dataset.video_files[cid]).name, cid))
+    if dataset.video_files and dataset.video is None:
+        raise DatasetError("videos/video.json: file is missing (videos need fps and a scale)")
+    yields = None
+    if dataset.yields is not None:
+        yields = _validate_table(_as_str(dataset.yields), "yields.csv", _YIELDS_REQUIRED,
+                                 _YIELDS_OPTIONAL, known_ids=ids)
+    return Dataset(name=meta["name"], description=meta["description"], source=meta["source"],
+                   velocity_frame=meta["velocity_frame"], conditions=cond, summary=summ,
+                   tracks=tracks, video=dataset.video, video_files=dict(dataset.video_files),
+                   yields=yields, meta=meta, path=dataset.path)
+
+
+def _as_str(df):
+    """Frame of strings (NaN -> ''), the form read from disk, so both paths validate alike."""
+    out = pd.DataFrame(index=range(len(df)))
+    for col in df.columns:
+        vals = []
+        for v in df[col].tolist():
+            if v is None or (isinstance(v, float) and math.isnan(v)):
+                vals.append("")
+            elif isinstance(v, float):
+                vals.append(repr(v))
+            else:
+                vals.append(str(v))
+        out[col] = vals
+    return out
+
+
+# --------------------------------------------------------------------------- load / write
+
+def load_dataset(path) -> Dataset:
+    """Read and validate a dataset folder ``data/measurements/<name>/``.
+
+    Parameters
+    ----------
+    path : str or Path
+        the dataset folder
+
+    Returns
+    -------
+    Dataset
+
+    Raises
+    ------
+    DatasetError
+        the first contract violation found, naming the file, row and column.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError("%s: dataset folder not found" % path)
+    try:
+        with open(path / "dataset.json") as fh:
+            meta = json.load(fh)
+    except FileNotFoundError:
+        raise DatasetError("%s: file is missing" % (path / "dataset.json")) from None
+    except json.JSONDecodeError as exc:
+        raise DatasetError("%s: malformed JSON (%s)" % (path / "dataset.json", exc)) from None
+    _validate_meta(meta, str(path / "dataset.json"))
+    raw = {"conditions": _read_csv(path / "conditions.csv", str(path / "conditions.csv")),
+           "summary": _read_csv(path / "summary.csv", str(path / "summary.csv"))}
+    tracks = {}
+    if (path / "tracks").is_dir():
+        for f in sorted((path / "tracks").glob("*.csv")):
+            tracks[f.stem] = _read_csv(f, str(f))
+    video, video_files = None, {}
+    vdir = path / "videos"
+    if vdir.is_dir():
+        if (vdir / "video.json").exists():
+            try:
+                with open(vdir / "video.json") as fh:
+                    video = json.load(fh)
+            except json.JSONDecodeError as exc:
+                raise DatasetError("%s: malformed JSON (%s)" % (vdir / "video.json", exc)) from None
+        for f in sorted(vdir.iterdir()):
+            if f.name != "video.json" and f.is_file():
+                if f.stem in video_files:
+                    raise DatasetError("%s: two videos for condition %r" % (f, f.stem))
+                video_files[f.stem] = f
+    yields = None
+    if (path / "yields.csv").exists():
+        yields = _read_csv(path / "yields.csv", str(path / "yields.csv"))
+    ds = Dataset(name=meta["name"], description=meta["description"], source=meta["source"],
+                 velocity_frame=meta["velocity_frame"], conditions=raw["conditions"],
+                 summary=raw["summary"], tracks=tracks, video=video, video_files=video_files,
+                 yields=yields, meta=meta, path=path)
+    try:
+        return validate(ds)
+    except DatasetError as exc:
+        # prefix the folder so the message names the full file path
+        raise DatasetError("%s/%s" % (path, exc)) from None
+
+
+def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
+    """Validate and write ``dataset`` to the folder ``path`` atomically.
+
+    Everything is written to a temporary sibling folder which is renamed to ``path`` when
+    complete, so a reader never sees half a dataset.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        frames may hold numbers or strings; NaN in sd columns is written as an empty cell
+    path : str or Path
+        target folder
+    overwrite : bool
+        replace an existing folder (else FileExistsError)
+
+    Returns
+    -------
+    Path : the written folder
+    """
+    path = Path(path)
+    ds = validate(dataset)
+    if path.exists() and not overwrite:
+        raise FileExistsError("%s exists (pass overwrite=True to replace it)" % path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % path.name, dir=path.parent))
+    try:
+        with open(tmp / "dataset.json", "w") as fh:
+            json.dump(ds.meta, fh, indent=2)
+            fh.write("\n")
+        ds.conditions.to_csv(tmp / "conditions.csv", index=False)
+        ds.summary.to_csv(tmp / "summary.csv", index=False, na_rep="")
+        if ds.tracks:
+            (tmp / "tracks").mkdir()
+            for cid, tr in ds.tracks.items():
+                tr.to_csv(tmp / "tracks" / ("%s.csv" % cid), index=False)
+        if ds.video is not None or ds.video_files:
+            (tmp / "videos").mkdir()
+            with open(tmp / "videos" / "video.json", "w") as fh:
+                json.dump(ds.video, fh, indent=2)
+            for cid, f in ds.video_files.items():
+                shutil.copy2(f, tmp / "videos" / ("%s%s" % (cid, Path(f).suffix)))
+        if ds.yields is not None:
+            ds.yields.to_csv(tmp / "yields.csv", index=False, na_rep="")
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=".%s.old-" % path.name, dir=path.parent))
+            os.replace(path, old / path.name)
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+def measurement_table(dataset: Dataset, v_rel_sd: float = DEFAULT_V_REL_SD,
+                      f_col_sd_hz: float = DEFAULT_F_COL_SD_HZ) -> pd.DataFrame:
+    """Long table of the summary observables with their standard uncertainties.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    v_rel_sd : float
+        sd used where v_mean_sd_m_s is empty, as a fraction of v_mean_m_s (default 0.015)
+    f_col_sd_hz : float
+        sd used where f_col_sd_hz is empty [1/s] (default 1.0)
+
+    Returns
+    -------
+    DataFrame, shape (n_summary * 2, 5)
+        condition_id, observable ('v_mean_m_s' | 'f_col_hz'), value, sd, sd_default (bool)
+    """
+    rows = []
+    for _, r in dataset.summary.iterrows():
+        for obs, sdcol in SUMMARY_OBSERVABLES.items():
+            sd = r[sdcol]
+            default = not np.isfinite(sd)
+            if default:
+                sd = v_rel_sd * r[obs] if obs == "v_mean_m_s" else f_col_sd_hz
+            rows.append((r["condition_id"], obs, float(r[obs]), float(sd), bool(default)))
+    return pd.DataFrame(rows, columns=["condition_id", "observable", "value", "sd", "sd_default"])
+
+
+def main(argv=None):
+    """``python -m analysis.measurements DIR``: validate a dataset and print what it holds."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("dataset", help="dataset folder data/measurements/<name>/")
+    args = ap.parse_args(argv)
+    try:
+        ds = load_dataset(args.dataset)
+    except DatasetError as exc:
+        print("error: %s" % exc, file=sys.stderr)
+        return 2
+    print("%s: %d conditions, %d summary rows, %d tracks, %d videos, yields: %s, frame: %s"
+          % (ds.name, len(ds.conditions), len(ds.summary), len(ds.tracks), len(ds.video_files),
+             "no" if ds.yields is None else "%d rows" % len(ds.yields), ds.velocity_frame))
+    for col, ids in ds.missing_sd.items():
+        print("  %s empty for %d condition(s): default uncertainty used" % (col, len(ids)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

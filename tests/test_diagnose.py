@@ -1,0 +1,259 @@
+"""Effect diagnosis on a toy analytic mill model with known hidden effects.
+
+The toy: mean speed v(f, d) = scale * (f / 25)^0.9 * (1 - size_slope * (d / 17.5 - 1)) and
+collision frequency f_col = 2 f (1 - 0.02 size_slope), two base parameters (scale_m_s,
+size_slope), 12 conditions (4 frequencies x 3 ball sizes) -> 24 observations. Four candidate
+effects with distinct signatures (curvature in f, linear trend in f, an f_col trend, an f x d
+interaction) and a decoy, air drag, whose change is ~0.3 % of v and almost a pure scale (absorbed
+by scale_m_s). Data = truth + measurement noise (1.5 % of v, 0.5 /s); the model's own replicate
+noise (2 %/sqrt(3) of v, 0.3 /s) is a fixed offset per observation (common random numbers) that
+the diagnosis must carry in its uncertainties.
+"""
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.diagnose import (AddEffectResult, BaseParameter, Diagnosis, Effect, add_effect,
+                               diagnose, model_se_from_predictions, residual_structure)
+
+FREQS = [22.5, 25.0, 27.5, 30.0]
+DIAMS = [15.0, 17.5, 20.6]
+CONDS = pd.DataFrame([{"condition_id": "f%g_d%g" % (f, d), "frequency_hz": f,
+                       "ball_diameter_mm": d} for f in FREQS for d in DIAMS])
+IDX = pd.MultiIndex.from_product([CONDS["condition_id"], ["v_mean_m_s", "f_col_hz"]])
+IS_V = IDX.get_level_values(1) == "v_mean_m_s"
+TRUE = {"scale_m_s": 2.2, "size_slope": 0.3}
+BASE = [BaseParameter("scale_m_s", 2.0, 1.0, 4.0), BaseParameter("size_slope", 0.1, -1.0, 1.0)]
+CANDIDATES = ["wall_compliance", "rolling_resistance", "jar_flex", "ball_spin"]
+DECOY = "air_drag"
+EFFECTS = [Effect(n, 0.0, 1.0) for n in CANDIDATES] + [
+    Effect(DECOY, 0.0, 1.0, description="air drag on the ball: decoy, ~0.3 % of v")]
+V_SD, F_SD = 0.015, 0.5                  # measurement sd: fraction of v, 1/s
+V_SE, F_SE = 0.02 / np.sqrt(3), 0.3      # twin's replicate noise of the mean: fraction, 1/s
+F = CONDS["frequency_hz"].to_numpy()
+D = CONDS["ball_diameter_mm"].to_numpy()
+X = (F - 26.25) / 3.75                   # -1 .. 1
+Y = (D - 17.5) / 3.0
+
+
+def toy(theta, eff):
+    """Toy twin: Series indexed by (condition_id, observable)."""
+    v = theta["scale_m_s"] * (F / 25.0) ** 0.9 * (1 - theta["size_slope"] * (D / 17.5 - 1))
+    fc = 2 * F * (1 - 0.02 * theta["size_slope"])
+    v = v * (1 - 0.15 * eff.get("wall_compliance", 0.0) * X ** 2)
+    v = v * (1 + 0.10 * eff.get("rolling_resistance", 0.0) * X)
+    fc = fc * (1 - 0.03 * eff.get("jar_flex", 0.0) * (1 + X))
+    v = v * (1 - 0.12 * eff.get("ball_spin", 0.0) * X * Y)
+    v = v * (1 - 0.003 * eff.get("air_drag", 0.0) * (v / 2.5) ** 2)
+    v = v * (1 + 0.10 * eff.get("grip", 0.0))          # pure scale: fully absorbable
+    return pd.Series(np.column_stack([v, fc]).ravel(), index=IDX)
+
+
+def sigma_of(truth):
+    t = truth.to_numpy()
+    return np.hypot(np.where(IS_V, V_SD * t, F_SD), np.where(IS_V, V_SE * t, F_SE))
+
+
+def make(hidden=None, seed=0):
+    """Dataset with hidden effects {name: strength}; returns (observations, predict, model_se)."""
+    rng = np.random.default_rng(seed)
+    truth = toy(TRUE, hidden or {})
+    t = truth.to_numpy()
+    sd = np.where(IS_V, V_SD * t, F_SD)
+    se = np.where(IS_V, V_SE * t, F_SE)
+    obs = pd.DataFrame({"condition_id": IDX.get_level_values(0),
+                        "observable": IDX.get_level_values(1),
+                        "value": t + rng.normal(0.0, sd), "sd": sd})
+    e_model = rng.normal(0.0, se)        # the twin's replicate-mean error, common to all calls
+
+    def predict(theta, eff):
+        return pd.Series(toy(theta, eff).to_numpy() + e_model, index=IDX)
+
+    return obs, predict, pd.Series(se, index=IDX)
+
+
+def run(hidden=None, seed=0, effects=EFFECTS, **kw):
+    obs, predict, se = make(hidden, seed)
+    return diagnose(predict, obs, BASE, effects, model_se=se, conditions=CONDS, **kw)
+
+
+HIDDEN_STRENGTH = 0.8
+SEEDS = range(10)
+
+
+@pytest.fixture(scope="module")
+def hidden_runs():
+    return {(e, s): run({e: HIDDEN_STRENGTH}, seed=100 + s) for e in CANDIDATES for s in SEEDS}
+
+
+@pytest.fixture(scope="module")
+def null_runs():
+    return [run(None, seed=500 + s) for s in range(40)]
+
+
+def test_hidden_strength_moves_an_observable_by_3_sigma():
+    base = toy(TRUE, {})
+    for e in CANDIDATES:
+        shift = np.abs(toy(TRUE, {e: HIDDEN_STRENGTH}) - base).to_numpy() / sigma_of(base)
+        assert shift.max() >= 3.0, e
+    decoy = np.abs(toy(TRUE, {DECOY: 1.0}) - base).to_numpy() / sigma_of(base)
+    assert decoy.max() < 0.3
+
+
+def test_result_shape_and_projection():
+    d = run(None, seed=1)
+    assert isinstance(d, Diagnosis)
+    t = d.to_frame()
+    assert list(t["rank"]) == [1, 2, 3, 4, 5]
+    assert set(t["effect"]) == set(CANDIDATES) | {DECOY}
+    sig = d.projected_signatures
+    assert sig.shape == (24, 5)
+    # projected signatures are orthogonal to the base Jacobian (whitened metric)
+    J = d.calibrated.jac.to_numpy()
+    for name in sig.columns:
+        g = sig[name].to_numpy()
+        assert np.all(np.abs(J.T @ g) <= 1e-8 * np.linalg.norm(J, axis=0) * np.linalg.norm(g))
+    row = t.set_index("effect")
+    assert row.loc[DECOY, "footprint"] < 0.5 and not row.loc[DECOY, "identifiable"]
+    assert row.loc[DECOY, "absorbed_frac"] > 0.8
+    for e in CANDIDATES:
+        assert row.loc[e, "footprint"] > 8.0 and row.loc[e, "identifiable"]
+
+
+def test_pure_scale_effect_is_fully_absorbed():
+    d = run({"grip": 1.0}, seed=2, effects=EFFECTS + [Effect("grip", 0.0, 1.0)])
+    row = d.table.set_index("effect").loc["grip"]
+    assert row["absorbed_frac"] > 1 - 1e-6
+    assert row["footprint"] < 1e-3 and not row["significant"]
+    # the calibration absorbed it: nothing missing, scale_m_s moved by the grip factor 1.1
+    assert d.status == "nothing_missing"
+    assert d.calibrated.params["scale_m_s"] == pytest.approx(2.2 * 1.1, abs=4 * d.calibrated.stderr["scale_m_s"])
+
+
+def test_true_effect_ranks_first(hidden_runs):
+    rank1 = np.mean([hidden_runs[k].table["effect"].iat[0] == k[0] for k in hidden_runs])
+    reported = np.mean([hidden_runs[k].best == k[0] for k in hidden_runs])
+    assert rank1 >= 0.9
+    assert reported >= 0.9
+    for k, d in hidden_runs.items():
+        assert d.status in ("effect", "effect_partial") or d.best is None
+        assert d.best in (None, k[0])
+
+
+def test_decoy_never_significant(hidden_runs, null_runs):
+    for d in list(hidden_runs.values()) + null_runs:
+        assert not d.table.set_index("effect").at[DECOY, "significant"]
+    for s in range(10):     # even when the decoy is truly present at full strength
+        d = run({DECOY: 1.0}, seed=900 + s)
+        assert not d.table.set_index("effect").at[DECOY, "significant"]
+
+
+def test_fitted_strength_pulls(hidden_runs):
+    pulls = np.array([(d.table.set_index("effect").at[k[0], "strength"] - HIDDEN_STRENGTH)
+                      / d.table.set_index("effect").at[k[0], "strength_se"]
+                      for k, d in hidden_runs.items()])
+    assert np.mean(np.abs(pulls) < 3.0) >= 0.95
+    assert 0.6 < np.std(pulls) < 1.5
+    assert abs(np.mean(pulls)) < 0.6
+
+
+def test_no_effect_says_nothing_missing(null_runs):
+    status = [d.status for d in null_runs]
+    assert np.mean([s == "nothing_missing" for s in status]) >= 0.9
+    assert np.mean([d.table["significant"].any() for d in null_runs]) <= 0.05
+    d = next(d for d in null_runs if d.status == "nothing_missing")
+    assert "nothing missing" in d.verdict and d.best is None
+
+
+def test_model_replicate_noise_is_needed():
+    with_noise, without = [], []
+    for s in range(20):
+        obs, predict, se = make(None, seed=700 + s)
+        with_noise.append(diagnose(predict, obs, BASE, EFFECTS, model_se=se,
+                                   conditions=CONDS).calibrated.chi2_dof)
+        without.append(diagnose(predict, obs, BASE, EFFECTS, conditions=CONDS,
+                                structure=False).calibrated.chi2_dof)
+    assert 0.75 < np.median(with_noise) < 1.25
+    # measurement sd alone understates the misfit: (1.5^2 + 1.15^2) / 1.5^2 = 1.6 for v
+    assert np.median(without) > 1.3
+
+
+def test_add_effect_staircase():
+    ok, stairs = [], []
+    for e in CANDIDATES:
+        for s in SEEDS:
+            obs, predict, se = make({e: 1.0}, seed=300 + s)
+            a = add_effect(predict, obs, BASE, EFFECTS, e, model_se=se)
+            assert isinstance(a, AddEffectResult)
+            c = a.staircase.set_index("stage")["chi2_dof"]
+            assert list(a.staircase["stage"]) == ["baseline", "calibrated", "with %s" % e]
+            chi2 = a.staircase.set_index("stage")["chi2"]
+            assert chi2["baseline"] >= chi2["calibrated"] >= chi2["with %s" % e]
+            assert a.after.p_value > 1e-3      # after: consistent with noise
+            assert abs(a.strength - 1.0) < 4 * a.strength_se
+            ok.append(c.iloc[2] <= 1.5 and c.iloc[1] >= 3 * c.iloc[2])
+            stairs.append(c.to_numpy())
+    # chi2_21 exceeds 1.5 * 21 with probability ~6 %: the criterion is noise-limited
+    assert np.mean(ok) >= 0.9
+    frame = a.to_frame()
+    assert list(frame.columns) == ["model_calibrated", "z_calibrated", "model_with_effect",
+                                   "z_with_effect"]
+    assert "switched on" in a.summary()
+
+
+def test_missing_candidate_gives_structure_not_a_name():
+    cands = [e for e in EFFECTS if e.name != "rolling_resistance"]
+    for s in range(5):
+        d = run({"rolling_resistance": 1.0}, seed=40 + s, effects=cands)
+        assert d.status == "unexplained" and d.best is None
+        assert "trends with frequency" in d.verdict
+        assert d.structure["descriptor"].iat[0] == "frequency trend"
+
+
+def test_outlier_condition_is_described():
+    obs, predict, se = make(None, seed=7)
+    bad = (obs["condition_id"] == "f25_d17.5") & (obs["observable"] == "v_mean_m_s")
+    obs.loc[bad, "value"] *= 1.12
+    d = diagnose(predict, obs, BASE, EFFECTS, model_se=se, conditions=CONDS)
+    assert d.status == "unexplained"
+    first = d.structure.iloc[0]
+    assert first["descriptor"] == "outlier" and first["condition_id"] == "f25_d17.5"
+    assert first["z_score"] < 0              # model low against the inflated measurement
+    assert "17.5 mm ball at 25 Hz" in d.verdict
+
+
+def test_fd_noise_lowers_identifiability():
+    obs, predict, se = make(None, seed=3)
+    det = diagnose(predict, obs, BASE, EFFECTS, model_se=se, conditions=CONDS)
+    noisy = diagnose(predict, obs, BASE, EFFECTS, model_se=se * 4, conditions=CONDS,
+                     crn_correlation=0.0)
+    assert np.isinf(det.table["signature_snr"]).all()
+    t = noisy.table.set_index("effect")
+    assert np.isfinite(t["signature_snr"]).all()
+    assert not t["identifiable"].any()       # 4x noise, independent runs: signatures drown
+
+
+def test_model_se_from_predictions():
+    p = pd.DataFrame({"condition_id": ["a", "a"], "observable": ["v_mean_m_s", "f_col_hz"],
+                      "mean": [2.0, 50.0], "sd": [0.06, 1.2], "n_replicates": [3, 4]})
+    se = model_se_from_predictions(p)
+    assert se[("a", "v_mean_m_s")] == pytest.approx(0.06 / np.sqrt(3))
+    assert se[("a", "f_col_hz")] == pytest.approx(0.6)
+
+
+def test_bad_inputs():
+    obs, predict, se = make(None, seed=0)
+    with pytest.raises(ValueError, match="null strength"):
+        Effect("x", 0.0, 1.0, null=2.0)
+    with pytest.raises(ValueError, match="kind"):
+        Effect("x", 0.0, 1.0, kind="magic")
+    with pytest.raises(ValueError, match="outside"):
+        BaseParameter("a", 5.0, 0.0, 1.0)
+    with pytest.raises(ValueError, match="no value"):
+        diagnose(lambda th, ef: predict(th, ef).iloc[:-1], obs, BASE, EFFECTS, model_se=se)
+    with pytest.raises(ValueError, match="required column"):
+        diagnose(predict, obs.drop(columns="sd"), BASE, EFFECTS)
+    with pytest.raises(TypeError):
+        diagnose(lambda th, ef: predict(th, ef).to_numpy(), obs, BASE, EFFECTS)
+    with pytest.raises(ValueError, match="unknown effect"):
+        add_effect(predict, obs, BASE, EFFECTS, "gremlins", model_se=se)
