@@ -1,0 +1,655 @@
+"""Observation operator: a ball track (from video or from the twin) -> v_mean, E_kin, f_col.
+
+ONE operator for both sides (seed paper, Sec. 2.5 and 3.1.1, eqs 1-3, Figure 5):
+
+1. the camera-plane track (t, x, y; x along the jar axis) sampled at the camera rate;
+2. velocity by finite differences between consecutive frames (eqs 1-2), v = sqrt(vx^2 + vy^2)
+   (eq 3, 2-D: the camera does not see depth);
+3. Savitzky-Golay smoothing of the velocity (scipy.signal.savgol_filter);
+4. collisions = sign changes of the smoothed x-velocity, with a dead band (hysteresis): the sign
+   state flips only when the velocity crosses the OPPOSITE threshold, so noise near zero makes no
+   false collisions;
+5. v_mean = time average of the speed over the record, E_kin = 1/2 m v_mean^2,
+   f_col = collisions / duration.
+
+The same function serves a tracked video (:func:`observe_track`, :func:`observe_track_file`) and a
+twin recording (:func:`observe_recording`: trajectory.csv sampled at the camera rate and projected on
+the camera plane: camera x = x_m, camera y = z_m). Frames: ``lab`` (a camera on a tripod) or ``jar``
+(a camera riding on the jar: x - jar_x_m).
+
+Smoothing window rule
+---------------------
+With f the jar frequency and two end impacts per cycle, the time between impacts is fps / (2 f)
+frames (35.6 frames at 2134 fps and 30 Hz). The window is the largest odd number of frames not
+above a QUARTER of that (7 frames at 30 Hz, 11 at 22.5 Hz), at least polyorder + 3: the smoother
+then never spans two impacts, and each flight holds >= 4 windows. If f is not given it is taken
+from the spectrum of x (dominant frequency).
+
+Impacts are sharp (contact ~0.1 ms < one frame). A smoother run across an impact rounds the
+reversal and lowers mean |v| by ~ window / (4 * frames between impacts) - several per cent - and
+even the raw difference across the impact frame cuts the corner (-0.5 frame per impact: -1.4 % at
+30 Hz, 2134 fps). Hence, by default (``kink_correction=True``): at each detected collision a local
+test decides between a smooth turn (velocity linear through the reversal, e.g. a sinusoid) and a
+kink (a jump); at a kink the three frame-differences around it are dropped, the velocity is
+smoothed on each side separately, and the speed is interpolated across the dropped frames (the
+time integral of the speed is a trapezoid over the kept samples). ``kink_correction=False`` is
+the paper's plain recipe (smoothing straight through), kept to measure its bias.
+
+Gaps
+----
+Rows with NaN position or quality ``lost`` are gaps. Velocity is never differentiated across a
+gap; the track is split into runs. A gap shorter than a quarter of the inter-impact time is
+bridged for collision counting (at most one reversal fits in it; the sign before and after tells);
+longer gaps end a run, and their time is excluded from the duration. The gap fraction is reported;
+above ``max_gap_fraction`` (default 0.2) :class:`TrackGapError` is raised.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.signal import savgol_filter, savgol_coeffs
+
+from analysis import config
+
+#: Seed paper's camera (Chronos 1.4) frame rate [1/s].
+CAMERA_FPS = 2134.0
+#: Steel density used when only a ball diameter is known [kg/m3] (Table 2).
+STEEL_DENSITY_KG_M3 = 7800.0
+TRACK_COLUMNS = ("t_s", "x_m", "y_m")
+TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "jar_x_m",
+                      "jar_vx_m_s")
+IMPACT_COLUMNS = ("event_id", "t_start_s", "t_end_s", "where")
+
+
+class ObserveError(ValueError):
+    """Bad input to the observation operator (names the file / row / column where known)."""
+
+
+class TrackGapError(ObserveError):
+    """The track has too many lost frames to give trustworthy figures."""
+
+
+# --------------------------------------------------------------------------------------------
+# result object
+# --------------------------------------------------------------------------------------------
+@dataclass
+class ObservationResult:
+    """What the operator measured from one track.
+
+    Attributes
+    ----------
+    v_mean_m_s : float
+        Time-averaged camera-plane speed (eq 3 in 2-D) [m/s].
+    v_mean_raw_m_s : float
+        Mean of |raw finite-difference velocity| (no smoothing, no kink handling) [m/s].
+    e_kin_j : float
+        1/2 m v_mean^2 [J] (NaN when the mass is unknown).
+    f_col_hz : float
+        Collisions per second of observed time [1/s].
+    f_col_interval_hz : float
+        (n - 1) / (last - first collision time): a rate free of the +-1 edge quantisation [1/s].
+    n_collisions : int
+    collision_times_s : ndarray, shape (n_collisions,)
+    t_s : ndarray, shape (m,)
+        Times of the velocity samples (midpoints of consecutive frames) [s].
+    vx_m_s, vy_m_s : ndarray, shape (m,)
+        Smoothed velocity (NaN at gaps and at dropped kink frames) [m/s].
+    vx_raw_m_s, vy_raw_m_s : ndarray, shape (m,)
+        Finite differences (eqs 1-2) [m/s].
+    duration_s : float
+        Observed time (gaps longer than the bridge limit excluded) [s].
+    gap_fraction : float
+        Fraction of frames lost.
+    n_kinks : int
+        Collisions treated as sharp kinks.
+    count_duration_s : float
+        Time base of f_col: duration_s plus bridged short gaps [s].
+    params : dict
+        fps, frequency_hz, window_frames, polyorder, deadband_m_s, noise_px-equivalent [m],
+        frame, kink_correction, mass_kg, ...
+    """
+
+    v_mean_m_s: float
+    v_mean_raw_m_s: float
+    e_kin_j: float
+    f_col_hz: float
+    f_col_interval_hz: float
+    n_collisions: int
+    collision_times_s: np.ndarray
+    t_s: np.ndarray
+    vx_m_s: np.ndarray
+    vy_m_s: np.ndarray
+    vx_raw_m_s: np.ndarray
+    vy_raw_m_s: np.ndarray
+    duration_s: float
+    gap_fraction: float
+    n_kinks: int
+    count_duration_s: float
+    params: dict = field(default_factory=dict)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One-row summary: the figures and the parameters used."""
+        row = {"v_mean_m_s": self.v_mean_m_s, "v_mean_raw_m_s": self.v_mean_raw_m_s,
+               "e_kin_j": self.e_kin_j, "f_col_hz": self.f_col_hz,
+               "f_col_interval_hz": self.f_col_interval_hz, "n_collisions": self.n_collisions,
+               "duration_s": self.duration_s, "gap_fraction": self.gap_fraction,
+               "n_kinks": self.n_kinks}
+        row.update({f"param_{k}": v for k, v in self.params.items()})
+        return pd.DataFrame([row])
+
+    def samples_frame(self) -> pd.DataFrame:
+        """Velocity samples: t_s, vx_raw_m_s, vy_raw_m_s, vx_m_s, vy_m_s, speed_m_s."""
+        return pd.DataFrame({"t_s": self.t_s, "vx_raw_m_s": self.vx_raw_m_s,
+                             "vy_raw_m_s": self.vy_raw_m_s, "vx_m_s": self.vx_m_s,
+                             "vy_m_s": self.vy_m_s,
+                             "speed_m_s": np.hypot(self.vx_m_s, self.vy_m_s)})
+
+
+# --------------------------------------------------------------------------------------------
+# parameters from fps and f
+# --------------------------------------------------------------------------------------------
+def window_frames(fps: float, frequency_hz: float, polyorder: int = 2) -> int:
+    """Savitzky-Golay window [frames]: largest odd <= fps / (2 f) / 4, at least polyorder + 3.
+
+    Parameters
+    ----------
+    fps : float
+        Camera frame rate [1/s].
+    frequency_hz : float
+        Jar frequency f [Hz]; the impacts come every fps / (2 f) frames.
+    polyorder : int
+        Savitzky-Golay polynomial order.
+    """
+    if not fps > 0:
+        raise ObserveError(f"fps must be > 0, got {fps}")
+    if not frequency_hz > 0:
+        raise ObserveError(f"frequency_hz must be > 0, got {frequency_hz}")
+    n_half = fps / (2.0 * frequency_hz)
+    w = int(math.floor(n_half / 4.0))
+    if w % 2 == 0:
+        w -= 1
+    return max(w, polyorder + 3 if (polyorder + 3) % 2 else polyorder + 4)
+
+
+def estimate_frequency(t_s: np.ndarray, x_m: np.ndarray) -> float:
+    """Dominant frequency of x(t) [Hz] (periodogram peak, mean removed); NaN rows ignored."""
+    ok = np.isfinite(x_m)
+    t, x = t_s[ok], x_m[ok]
+    if len(t) < 16:
+        raise ObserveError("too few valid samples to estimate the jar frequency")
+    dt = np.median(np.diff(t))
+    tu = np.arange(t[0], t[-1], dt)
+    xu = np.interp(tu, t, x)
+    xu = xu - xu.mean()
+    n = 1 << int(math.ceil(math.log2(len(xu) * 8)))
+    p = np.abs(np.fft.rfft(xu * np.hanning(len(xu)), n)) ** 2
+    fr = np.fft.rfftfreq(n, dt)
+    p[0] = 0
+    return float(fr[np.argmax(p)])
+
+
+def _noise_sigma(x: np.ndarray) -> float:
+    """Position noise [same unit as x] from the MAD of third differences (sqrt(20) sigma)."""
+    d3 = np.diff(x, 3)
+    d3 = d3[np.isfinite(d3)]
+    if len(d3) < 5:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d3 - np.median(d3))) / math.sqrt(20.0))
+
+
+def _runs(valid: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) index pairs of consecutive True."""
+    v = np.concatenate([[False], valid, [False]]).astype(np.int8)
+    d = np.diff(v)
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _hysteresis_states(v: np.ndarray, db: float) -> np.ndarray:
+    """Sign state (+1/-1, 0 before the first exit from the dead band) after each sample."""
+    st = np.zeros(len(v), np.int8)
+    s = 0
+    for i, vi in enumerate(v):
+        if vi > db:
+            s = 1
+        elif vi < -db:
+            s = -1
+        st[i] = s
+    return st
+
+
+def _smooth(v: np.ndarray, w: int, p: int) -> np.ndarray:
+    n = len(v)
+    if n == 0:
+        return v.copy()
+    ww = min(w, n if n % 2 else n - 1)
+    if ww <= p:
+        return np.full(n, np.mean(v)) if n else v.copy()
+    return savgol_filter(v, ww, p, mode="interp")
+
+
+# --------------------------------------------------------------------------------------------
+# the operator
+# --------------------------------------------------------------------------------------------
+def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: float | None = None,
+                  quality=None, mass_kg: float | None = None, window: int | None = None,
+                  polyorder: int = 2, deadband_m_s: float | None = None, n_sigma: float = 6.0,
+                  deadband_floor_m_s: float = 0.02, kink_correction: bool = True,
+                  max_gap_fraction: float = 0.2, frame: str = "lab", jar_x_m=None,
+                  source: str = "track") -> ObservationResult:
+    """Apply the observation operator to a camera-plane track.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (n,)
+        Frame times [s], increasing, uniform (1 / fps) apart.
+    x_m, y_m : array_like, shape (n,)
+        Ball centre in the camera plane [m]; x along the jar axis. NaN marks a lost frame.
+    fps : float, optional
+        Camera rate [1/s]; default 1 / median frame spacing. Must agree with t_s (1 %).
+    frequency_hz : float, optional
+        Jar frequency [Hz] for the window rule; default from the spectrum of x.
+    quality : array_like of str, shape (n,), optional
+        'ok' / 'reacquired' / 'lost' per frame; 'lost' rows are gaps.
+    mass_kg : float, optional
+        Ball mass for E_kin (NaN E_kin without it).
+    window : int, optional
+        Savitzky-Golay window [frames] (odd); default :func:`window_frames`.
+    polyorder : int
+        Savitzky-Golay order.
+    deadband_m_s : float, optional
+        Hysteresis half-width on the smoothed vx; default max(n_sigma * noise of the smoothed
+        velocity, deadband_floor_m_s), the noise estimated from the track itself.
+    kink_correction : bool
+        Handle sharp impacts (see module notes); False reproduces the plain recipe.
+    max_gap_fraction : float
+        Above this fraction of lost frames, :class:`TrackGapError`.
+    frame : {'lab', 'jar'}
+        'jar' subtracts ``jar_x_m`` from x (a camera riding on the jar).
+    jar_x_m : array_like, shape (n,), optional
+        Jar displacement [m], needed for frame='jar'.
+    source : str
+        Name used in error messages.
+
+    Returns
+    -------
+    ObservationResult
+    """
+    t = np.asarray(t_s, float)
+    x = np.asarray(x_m, float).copy()
+    y = np.asarray(y_m, float).copy()
+    n = len(t)
+    if not (len(x) == n and len(y) == n):
+        raise ObserveError(f"{source}: t_s, x_m, y_m differ in length ({n}, {len(x)}, {len(y)})")
+    if frame not in ("lab", "jar"):
+        raise ObserveError(f"{source}: frame must be 'lab' or 'jar', got {frame!r}")
+    if frame == "jar":
+        if jar_x_m is None:
+            raise ObserveError(f"{source}: frame='jar' needs jar_x_m (column jar_x_m)")
+        x = x - np.asarray(jar_x_m, float)
+    if n < 8:
+        raise ObserveError(f"{source}: track has {n} rows; need at least 8 frames")
+    if not np.all(np.isfinite(t)):
+        bad = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ObserveError(f"{source}: row {bad}, column t_s: not a finite time")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        bad = int(np.flatnonzero(dt <= 0)[0]) + 1
+        raise ObserveError(f"{source}: row {bad}, column t_s: times must increase")
+    fps_t = 1.0 / float(np.median(dt))
+    if fps is None:
+        fps = fps_t
+    fps = float(fps)
+    if not (fps > 0 and math.isfinite(fps)):
+        raise ObserveError(f"{source}: fps must be > 0, got {fps}")
+    if abs(fps_t / fps - 1) > 0.01:
+        raise ObserveError(f"{source}: fps {fps} disagrees with the frame spacing of t_s "
+                           f"({fps_t:.6g} frames/s)")
+    if np.max(np.abs(dt * fps - 1)) > 0.05:
+        bad = int(np.argmax(np.abs(dt * fps - 1))) + 1
+        raise ObserveError(f"{source}: row {bad}, column t_s: frames not uniformly spaced "
+                           f"(missing frames must be rows with NaN position, not skipped rows)")
+    valid = np.isfinite(x) & np.isfinite(y)
+    if quality is not None:
+        q = np.asarray(quality).astype(str)
+        unknown = ~np.isin(q, ["ok", "reacquired", "lost", "nan"])
+        if np.any(unknown):
+            bad = int(np.flatnonzero(unknown)[0])
+            raise ObserveError(f"{source}: row {bad}, column quality: {q[bad]!r} is not "
+                               f"ok / reacquired / lost")
+        valid &= q != "lost"
+    gap_fraction = 1.0 - valid.mean()
+    if gap_fraction > max_gap_fraction:
+        raise TrackGapError(f"{source}: {100 * gap_fraction:.1f} % of the frames are lost "
+                            f"(limit {100 * max_gap_fraction:.0f} %); the track cannot give "
+                            f"v_mean or f_col")
+    if frequency_hz is None:
+        frequency_hz = estimate_frequency(t, np.where(valid, x, np.nan))
+    frequency_hz = float(frequency_hz)
+    if not frequency_hz > 0:
+        raise ObserveError(f"{source}: frequency_hz must be > 0, got {frequency_hz}")
+    n_half = fps / (2 * frequency_hz)
+    if n_half < 8:
+        raise ObserveError(f"{source}: {fps} frames/s gives only {n_half:.1f} frames between "
+                           f"impacts at {frequency_hz} Hz; need >= 8")
+    w = window_frames(fps, frequency_hz, polyorder) if window is None else int(window)
+    if w % 2 == 0 or w <= polyorder:
+        raise ObserveError(f"window must be odd and > polyorder, got {w}")
+    bridge = int(math.floor(n_half / 4))  # longest gap [frames] bridged for counting
+
+    # --- noise and dead band ----------------------------------------------------------------
+    sig_x = np.nanmedian([_noise_sigma(x[a:b]) for a, b in _runs(valid) if b - a > 10] or [0.0])
+    c = savgol_coeffs(w, polyorder)
+    k = np.convolve(c, [1.0, -1.0])
+    sig_vs = sig_x * fps * float(np.sqrt(np.sum(k ** 2)))
+    sig_vraw = sig_x * fps * math.sqrt(2.0)
+    db = max(n_sigma * sig_vs, deadband_floor_m_s) if deadband_m_s is None else float(deadband_m_s)
+    if db < 0:
+        raise ObserveError(f"deadband_m_s must be >= 0, got {db}")
+
+    # --- velocities per run -------------------------------------------------------------------
+    m = n - 1
+    tm = 0.5 * (t[1:] + t[:-1])
+    vxr = np.diff(x) * fps
+    vyr = np.diff(y) * fps
+    vpair = valid[1:] & valid[:-1]
+    vxr[~vpair] = np.nan
+    vyr[~vpair] = np.nan
+    vxs = np.full(m, np.nan)
+    vys = np.full(m, np.nan)
+    runs = [(a, b) for a, b in _runs(vpair) if b - a >= 3]
+    # group runs separated by short gaps (bridged for counting)
+    coll_times: list[float] = []
+    n_kinks = 0
+    duration = 0.0
+    integral = 0.0
+    integral_raw = 0.0
+    count_extra = 0.0  # bridged gap time: counted for f_col, not for v_mean
+    prev_state, prev_end_t, prev_end_idx = 0, None, None
+    last_zero_t = None
+    for a, b in runs:
+        vx_run = _smooth(vxr[a:b], w, polyorder)
+        st = _hysteresis_states(vx_run, db)
+        # collisions inside this run: state flips
+        flips = np.flatnonzero((st[1:] != st[:-1]) & (st[:-1] != 0)) + 1
+        # bridging from the previous run
+        gap_frames = None if prev_end_idx is None else a - prev_end_idx
+        first_state = st[np.flatnonzero(st != 0)[0]] if np.any(st != 0) else 0
+        if gap_frames is not None and gap_frames <= bridge:
+            count_extra += tm[a] - prev_end_t - 1.0 / fps
+            if prev_state != 0 and first_state != 0 and first_state != prev_state:
+                coll_times.append(0.5 * (prev_end_t + tm[a]))
+        zc_idx = []  # zero-crossing FD index (left sample) per collision in the run
+        for fi in flips:
+            # last sample before fi whose smoothed vx has the old sign
+            old = st[fi - 1]
+            j = fi - 1
+            while j > 0 and np.sign(vx_run[j]) != old:
+                j -= 1
+            jj = j + 1
+            while jj < fi and np.sign(vx_run[jj]) == old:
+                jj += 1
+            j = jj - 1
+            v0, v1 = vx_run[j], vx_run[j + 1]
+            frac = v0 / (v0 - v1) if v0 != v1 else 0.5
+            coll_times.append(tm[a + j] + frac * (tm[a + j + 1] - tm[a + j]))
+            zc_idx.append(j)
+        # kink test and segment-wise smoothing
+        drop = np.zeros(b - a, bool)
+        if kink_correction:
+            raw = vxr[a:b]
+            for j in zc_idx:
+                L = np.arange(max(j - 6, 0), j - 1)
+                R = np.arange(j + 3, min(j + 9, b - a))
+                if len(L) < 3 or len(R) < 3:
+                    continue
+                idx = np.concatenate([L, np.arange(j - 1, j + 3), R])
+                idx = idx[(idx >= 0) & (idx < b - a)]
+                A1 = np.vstack([idx, np.ones(len(idx))]).T
+                res = raw[idx] - A1 @ np.linalg.lstsq(A1, raw[idx], rcond=None)[0]
+                rms_line = float(np.sqrt(np.mean(res ** 2)))
+                jump = abs(np.mean(raw[R]) - np.mean(raw[L]))
+                if rms_line > max(4.0 * sig_vraw, 0.1 * jump):
+                    # locate the straddling difference: the sample nearest the sign change of raw
+                    win = np.arange(max(j - 2, 0), min(j + 4, b - a))
+                    kc = win[np.argmin(np.abs(raw[win]))]
+                    drop[max(kc - 1, 0):min(kc + 2, b - a)] = True
+                    n_kinks += 1
+        keep_runs = _runs(~drop)
+        vx_seg = np.full(b - a, np.nan)
+        vy_seg = np.full(b - a, np.nan)
+        for sa, sb in keep_runs:
+            vx_seg[sa:sb] = _smooth(vxr[a + sa:a + sb], w, polyorder)
+            vy_seg[sa:sb] = _smooth(vyr[a + sa:a + sb], w, polyorder)
+        vxs[a:b] = vx_seg
+        vys[a:b] = vy_seg
+        keep = ~drop
+        sp = np.hypot(vx_seg[keep], vy_seg[keep])
+        tk = tm[a:b][keep]
+        # trapezoid over kept samples, plus half a frame at each end of the run
+        integral += np.trapezoid(sp, tk) + 0.5 / fps * (sp[0] + sp[-1])
+        integral_raw += np.sum(np.hypot(vxr[a:b], vyr[a:b])) / fps
+        duration += (tm[b - 1] - tm[a]) + 1.0 / fps
+        last_state = st[np.flatnonzero(st != 0)[-1]] if np.any(st != 0) else prev_state
+        prev_state, prev_end_t, prev_end_idx = last_state, tm[b - 1], b
+    if not runs or duration <= 0:
+        raise TrackGapError(f"{source}: no stretch of consecutive frames long enough to measure")
+    n_valid_fd = int(np.sum(np.isfinite(vxr)))
+    v_mean = integral / duration
+    # raw mean over the same time base as the smoothed one
+    v_mean_raw = integral_raw / (n_valid_fd / fps)
+    ct = np.array(sorted(coll_times))
+    n_col = len(ct)
+    f_col = n_col / (duration + count_extra)
+    f_int = (n_col - 1) / (ct[-1] - ct[0]) if n_col >= 3 else float("nan")
+    e_kin = 0.5 * mass_kg * v_mean ** 2 if mass_kg is not None else float("nan")
+    params = {"fps": fps, "frequency_hz": frequency_hz, "window_frames": w,
+              "polyorder": polyorder, "deadband_m_s": db, "noise_sigma_m": sig_x,
+              "frame": frame, "kink_correction": bool(kink_correction),
+              "mass_kg": float("nan") if mass_kg is None else float(mass_kg),
+              "bridge_frames": bridge, "max_gap_fraction": max_gap_fraction}
+    return ObservationResult(float(v_mean), float(v_mean_raw), float(e_kin), float(f_col),
+                             float(f_int), n_col, ct, tm, vxs, vys, vxr, vyr, float(duration),
+                             float(gap_fraction), n_kinks,
+                             float(duration + count_extra), params)
+
+
+# --------------------------------------------------------------------------------------------
+# inputs: track files and twin recordings
+# --------------------------------------------------------------------------------------------
+def read_track(path) -> pd.DataFrame:
+    """Read a track CSV (t_s, x_m, y_m, optional quality / jar_x_m); clear errors on bad input."""
+    path = Path(path)
+    if not path.is_file():
+        raise ObserveError(f"{path}: no such track file")
+    try:
+        df = pd.read_csv(path)
+    except Exception as exc:  # pandas raises many kinds
+        raise ObserveError(f"{path}: not a readable CSV ({exc})") from None
+    missing = [c for c in TRACK_COLUMNS if c not in df.columns]
+    if missing:
+        raise ObserveError(f"{path}: missing column(s) {', '.join(missing)}")
+    for c in TRACK_COLUMNS:
+        if not pd.api.types.is_numeric_dtype(df[c]):
+            bad = pd.to_numeric(df[c], errors="coerce").isna() & df[c].notna()
+            row = int(np.flatnonzero(bad.to_numpy())[0]) if bad.any() else 0
+            raise ObserveError(f"{path}: row {row}, column {c}: not a number")
+    return df
+
+
+def observe_track_file(path, **kwargs) -> ObservationResult:
+    """:func:`observe_track` on a track CSV; a ``quality`` / ``jar_x_m`` column is used if present."""
+    df = read_track(path)
+    q = df["quality"].to_numpy() if "quality" in df.columns else None
+    jx = df["jar_x_m"].to_numpy() if "jar_x_m" in df.columns else None
+    kwargs.setdefault("source", str(path))
+    return observe_track(df["t_s"].to_numpy(), df["x_m"].to_numpy(), df["y_m"].to_numpy(),
+                         quality=q, jar_x_m=jx, **kwargs)
+
+
+@dataclass
+class RecordingData:
+    """A twin recording read from its folder (meta dict, trajectory and impacts tables)."""
+
+    path: Path | None
+    meta: dict
+    trajectory: pd.DataFrame
+    impacts: pd.DataFrame
+
+
+def load_recording(recording) -> RecordingData:
+    """Read a recording folder (meta.json, trajectory.csv, impacts.csv) or pass an object with
+    ``.meta``, ``.trajectory``, ``.impacts`` through (e.g. analysis.twin's Recording)."""
+    if all(hasattr(recording, a) for a in ("meta", "trajectory", "impacts")):
+        return RecordingData(getattr(recording, "path", None), recording.meta,
+                             recording.trajectory, recording.impacts)
+    d = Path(recording)
+    if not d.is_dir():
+        raise ObserveError(f"{d}: not a recording folder")
+    for name in ("meta.json", "trajectory.csv", "impacts.csv"):
+        if not (d / name).is_file():
+            raise ObserveError(f"{d}: missing {name}")
+    try:
+        meta = json.loads((d / "meta.json").read_text())
+    except json.JSONDecodeError as exc:
+        raise ObserveError(f"{d / 'meta.json'}: not valid JSON ({exc})") from None
+    try:
+        traj = pd.read_csv(d / "trajectory.csv")
+        imp = pd.read_csv(d / "impacts.csv")
+    except Exception as exc:
+        raise ObserveError(f"{d}: unreadable CSV ({exc})") from None
+    _check_columns(traj, TRAJECTORY_COLUMNS, d / "trajectory.csv")
+    _check_columns(imp, IMPACT_COLUMNS, d / "impacts.csv")
+    return RecordingData(d, meta, traj, imp)
+
+
+def _check_columns(df: pd.DataFrame, cols, path) -> None:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise ObserveError(f"{path}: missing column(s) {', '.join(missing)}")
+    for c in cols:
+        if c == "where":
+            continue
+        v = pd.to_numeric(df[c], errors="coerce").to_numpy()
+        bad = ~np.isfinite(v)
+        if bad.any():
+            raise ObserveError(f"{path}: row {int(np.flatnonzero(bad)[0])}, column {c}: "
+                               f"NaN or not a number")
+
+
+def camera_track(recording, fps: float | None = None, frame: str = "lab") -> pd.DataFrame:
+    """A recording's trajectory as the camera sees it: t_s, x_m (= x), y_m (= z), jar_x_m.
+
+    Sampled at ``fps`` (default the camera's 2134/s): every k-th row when the recording's rate is
+    an integer multiple, else linear interpolation of positions. ``frame='jar'`` subtracts
+    jar_x_m from x.
+    """
+    rec = load_recording(recording)
+    tr = rec.trajectory
+    fps = CAMERA_FPS if fps is None else float(fps)
+    if not fps > 0:
+        raise ObserveError(f"fps must be > 0, got {fps}")
+    t = tr["t_s"].to_numpy(float)
+    if len(t) < 8:
+        raise ObserveError(f"{rec.path}: trajectory.csv has {len(t)} rows; need at least 8")
+    rate = 1.0 / float(np.median(np.diff(t)))
+    ratio = rate / fps
+    if ratio < 0.99:
+        raise ObserveError(f"{rec.path}: trajectory rate {rate:.6g}/s is below the camera's "
+                           f"{fps:.6g}/s; rerun the twin with output_fps >= fps")
+    if abs(ratio - round(ratio)) < 1e-6:
+        sel = slice(None, None, int(round(ratio)))
+        ts = t[sel]
+        cols = {c: tr[c].to_numpy(float)[sel] for c in ("x_m", "z_m", "jar_x_m")}
+    else:
+        ts = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * fps + 1e-9)) + 1) / fps
+        cols = {c: np.interp(ts, t, tr[c].to_numpy(float)) for c in ("x_m", "z_m", "jar_x_m")}
+    x = cols["x_m"] - (cols["jar_x_m"] if frame == "jar" else 0.0)
+    if frame not in ("lab", "jar"):
+        raise ObserveError(f"frame must be 'lab' or 'jar', got {frame!r}")
+    return pd.DataFrame({"t_s": ts, "x_m": x, "y_m": cols["z_m"], "jar_x_m": cols["jar_x_m"]})
+
+
+def _ball_mass(meta: dict) -> float | None:
+    if "ball_mass_kg" in meta:
+        return float(meta["ball_mass_kg"])
+    cfg = meta.get("config", {})
+    if "ball_diameter_m" in cfg:
+        rho = float(cfg.get("ball_density_kg_m3", STEEL_DENSITY_KG_M3))
+        return rho * math.pi / 6 * float(cfg["ball_diameter_m"]) ** 3
+    return None
+
+
+def observe_recording(recording, fps: float | None = None, frame: str = "lab",
+                      **kwargs) -> ObservationResult:
+    """The observation operator on a twin recording (the 'video side' of the twin).
+
+    The trajectory is sampled at the camera rate and projected on the camera plane (x, z); in the
+    jar frame jar_x_m is subtracted. f and the ball mass come from meta.json unless given.
+    """
+    rec = load_recording(recording)
+    tr = camera_track(rec, fps, frame="lab")
+    cfg = rec.meta.get("config", {})
+    kwargs.setdefault("frequency_hz", cfg.get("frequency_hz"))
+    kwargs.setdefault("mass_kg", _ball_mass(rec.meta))
+    kwargs.setdefault("source", str(rec.path or "recording"))
+    return observe_track(tr["t_s"], tr["x_m"], tr["y_m"], fps=fps or CAMERA_FPS, frame=frame,
+                         jar_x_m=tr["jar_x_m"], **kwargs)
+
+
+def direct_figures(recording, frame: str = "lab") -> dict:
+    """The twin's own figures, no camera: true 3-D mean speed, camera-plane (x, z) mean speed,
+    and f_col = end_cap impacts per second over the recorded time.
+
+    Returns
+    -------
+    dict with v_mean_3d_m_s, v_mean_2d_m_s, e_kin_j (3-D), f_col_hz, n_end_cap, duration_s.
+    """
+    rec = load_recording(recording)
+    tr = rec.trajectory
+    if frame not in ("lab", "jar"):
+        raise ObserveError(f"frame must be 'lab' or 'jar', got {frame!r}")
+    t = tr["t_s"].to_numpy(float)
+    vx = tr["vx_m_s"].to_numpy(float) - (tr["jar_vx_m_s"].to_numpy(float) if frame == "jar"
+                                         else 0.0)
+    vy = tr["vy_m_s"].to_numpy(float)
+    vz = tr["vz_m_s"].to_numpy(float)
+    s3 = np.sqrt(vx ** 2 + vy ** 2 + vz ** 2)
+    s2 = np.hypot(vx, vz)
+    dur = float(t[-1] - t[0])
+    v3 = float(np.trapezoid(s3, t) / dur)
+    v2 = float(np.trapezoid(s2, t) / dur)
+    imp = rec.impacts
+    ts = pd.to_numeric(imp["t_start_s"]).to_numpy(float)
+    end = (imp["where"].astype(str).to_numpy() == "end_cap") & (ts >= t[0]) & (ts <= t[-1])
+    m = _ball_mass(rec.meta)
+    return {"v_mean_3d_m_s": v3, "v_mean_2d_m_s": v2,
+            "e_kin_j": 0.5 * m * v3 ** 2 if m is not None else float("nan"),
+            "f_col_hz": float(end.sum() / dur), "n_end_cap": int(end.sum()), "duration_s": dur}
+
+
+def operator_bias(recording, frame: str = "lab", fps: float | None = None,
+                  **kwargs) -> pd.DataFrame:
+    """Operator minus direct figures for one recording.
+
+    Rows: v_mean (operator vs true 3-D speed, and vs the camera-plane 2-D speed, which splits the
+    projection bias from the operator's own), e_kin, f_col. Columns: quantity, operator, direct,
+    difference, relative.
+    """
+    obs = observe_recording(recording, fps=fps, frame=frame, **kwargs)
+    d = direct_figures(recording, frame=frame)
+    rows = [("v_mean_m_s vs 3d", obs.v_mean_m_s, d["v_mean_3d_m_s"]),
+            ("v_mean_m_s vs 2d", obs.v_mean_m_s, d["v_mean_2d_m_s"]),
+            ("e_kin_j", obs.e_kin_j, d["e_kin_j"]),
+            ("f_col_hz", obs.f_col_hz, d["f_col_hz"])]
+    out = pd.DataFrame(rows, columns=["quantity", "operator", "direct"])
+    out["difference"] = out["operator"] - out["direct"]
+    out["relative"] = out["difference"] / out["direct"]
+    out["frame"] = frame
+    return out
