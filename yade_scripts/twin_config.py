@@ -73,6 +73,9 @@ PARAMETERS = {
                       "'flat': Hertz radius of a ball on a facet is the ball radius (a flat "
                       "wall), YADE's Ig2_Facet_Sphere_ScGeom(hertzian=True); 'yade_default': "
                       "facet counted as a sphere of radius 2r (R_eff = 2r/3)"),
+    "restitution_compensation": (True, None, None, "-", "numerical",
+                                 "adjust YADE's en so that a single impact at this dt gives the "
+                                 "configured restitution (removes the integrator's O(dt) loss)"),
     "seed": (0, 0, 2**31 - 1, "-", "numerical", "seed of the ball's random start position"),
     "max_wall_s": (1800.0, 1.0, 1e6, "s", "numerical", "a run longer than this is aborted"),
 }
@@ -86,7 +89,7 @@ CHOICES = {
 }
 
 #: Keys that are not plain floats.
-NON_FLOAT = set(CHOICES) | {"ball_init_pos_m", "ball_init_vel_m_s", "stl_path", "effects",
+NON_FLOAT = set(CHOICES) | {"restitution_compensation", "ball_init_pos_m", "ball_init_vel_m_s", "stl_path", "effects",
                             "seed", "steady_window_cycles"}
 
 
@@ -130,6 +133,10 @@ def complete_config(user):
                     raise ConfigError("%s must be a list of 3 finite numbers [%s], got %r"
                                       % (key, unit, val))
                 cfg[key] = [float(x) for x in val]
+            continue
+        if key == "restitution_compensation":
+            if not isinstance(val, bool):
+                raise ConfigError("restitution_compensation must be true or false, got %r" % (val,))
             continue
         if key == "stl_path":
             if not isinstance(val, str) or not val:
