@@ -213,11 +213,31 @@ def _default_model_sd(obs, mean, v_rel, f_col_sd, yield_sd):
 
 def model_standard_error(pred: pd.DataFrame, default_model_v_rel_sd=DEFAULT_MODEL_V_REL_SD,
                          default_model_f_col_sd_hz=DEFAULT_MODEL_F_COL_SD_HZ,
-                         default_model_yield_sd_pct=DEFAULT_MODEL_YIELD_SD_PCT) -> pd.DataFrame:
-    """Add model_se (sd of the replicate mean) and model_sd_default to a predictions table."""
+                         default_model_yield_sd_pct=DEFAULT_MODEL_YIELD_SD_PCT,
+                         pool: bool = False) -> pd.DataFrame:
+    """Add model_se (sd of the replicate mean) and model_sd_default to a predictions table.
+
+    With ``pool`` the replicate sd of each observable is pooled over all conditions with
+    n_replicates >= 2 (relative to the mean for v_mean_m_s, absolute otherwise; weights n - 1).
+    A per-condition sd from 3 replicates has only 2 degrees of freedom, so z values built on it
+    are heavy-tailed (Student t_2 in the limit of negligible measurement noise); pooling over 8
+    conditions gives 16 dof. Do not pool when one condition's replicates are bimodal (a slow
+    motion mode): that condition's scatter is real and its own.
+    """
     p = pred.copy()
     sd = p["sd"].to_numpy(float).copy()
     n = p["n_replicates"].to_numpy(float)
+    if pool:
+        obs = p["observable"].to_numpy()
+        mean = p["mean"].to_numpy(float)
+        for o in np.unique(obs):
+            m = (obs == o) & (n >= 2) & np.isfinite(sd)
+            if not m.any():
+                continue
+            rel = o == "v_mean_m_s"
+            x = sd[m] / np.abs(mean[m]) if rel else sd[m]
+            pooled = math.sqrt(np.sum((n[m] - 1) * x ** 2) / np.sum(n[m] - 1))
+            sd[m] = pooled * np.abs(mean[m]) if rel else pooled
     default = ~np.isfinite(sd) | (n < 2)
     for i in np.nonzero(default)[0]:
         if not np.isfinite(sd[i]) or sd[i] <= 0:
@@ -240,7 +260,8 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
             default_model_v_rel_sd: float = DEFAULT_MODEL_V_REL_SD,
             default_model_f_col_sd_hz: float = DEFAULT_MODEL_F_COL_SD_HZ,
             default_model_yield_sd_pct: float = DEFAULT_MODEL_YIELD_SD_PCT,
-            n_fitted_params: int = 0, n_phase_bins: int = 24) -> Comparison:
+            n_fitted_params: int = 0, n_phase_bins: int = 24,
+            pool_model_sd: bool = False) -> Comparison:
     """Compare model predictions with a dataset, condition by condition.
 
     Parameters
@@ -259,6 +280,9 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
         parameters fitted to these same data (subtracted from dof)
     n_phase_bins : int
         bins over one jar cycle for the phase-folded comparison
+    pool_model_sd : bool
+        pool the twin's replicate sd per observable over conditions (see
+        :func:`model_standard_error`); recommended with 3 replicates and no bimodal condition
 
     Returns
     -------
@@ -266,7 +290,7 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
     """
     pred = validate_predictions(predictions, set(dataset.condition_ids))
     pred = model_standard_error(pred, default_model_v_rel_sd, default_model_f_col_sd_hz,
-                                default_model_yield_sd_pct)
+                                default_model_yield_sd_pct, pool=pool_model_sd)
     meas = measurement_table(dataset, v_rel_sd=v_rel_sd, f_col_sd_hz=f_col_sd_hz)
     meas["time_min"] = np.nan
     if dataset.yields is not None:
@@ -518,6 +542,8 @@ def main(argv=None):
                     help="measured v sd where missing, fraction of v (default %(default)s)")
     ap.add_argument("--f-col-sd-hz", type=float, default=DEFAULT_F_COL_SD_HZ,
                     help="measured f_col sd where missing [1/s] (default %(default)s)")
+    ap.add_argument("--pool-model-sd", action="store_true",
+                    help="pool the twin's replicate sd per observable over conditions")
     ap.add_argument("--z-report", type=float, default=2.0, help="|z| listed in the summary")
     args = ap.parse_args(argv)
     try:
@@ -529,7 +555,7 @@ def main(argv=None):
         tracks = _read_model_tracks(args.model_tracks) if args.model_tracks else None
         try:
             cmp = compare(ds, pred, model_tracks=tracks, v_rel_sd=args.v_rel_sd,
-                          f_col_sd_hz=args.f_col_sd_hz)
+                          f_col_sd_hz=args.f_col_sd_hz, pool_model_sd=args.pool_model_sd)
         except PredictionError as exc:
             raise PredictionError("%s: %s" % (args.predictions, exc)) from None
         write_report(cmp, ds, args.out)

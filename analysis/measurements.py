@@ -40,6 +40,7 @@ Empty sd cells are reported by :attr:`Dataset.missing_sd` and replaced in
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import os
@@ -271,12 +272,23 @@ def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids
 
 
 def _read_csv(path, fname):
+    """Read a CSV as strings; every row must have as many fields as the header."""
     try:
-        return pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh, skipinitialspace=True))
     except FileNotFoundError:
         raise DatasetError("%s: file is missing" % fname) from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise DatasetError("%s: malformed CSV (%s)" % (fname, str(exc).strip().splitlines()[-1]))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DatasetError("%s: malformed CSV (%s)" % (fname, exc)) from None
+    rows = [r for r in rows if r]          # blank lines
+    if not rows:
+        raise DatasetError("%s: malformed CSV (empty file, no header)" % fname)
+    header = [h.strip() for h in rows[0]]
+    for i, r in enumerate(rows[1:], start=1):
+        if len(r) != len(header):
+            raise DatasetError("%s: malformed CSV (%d fields, the header has %d)"
+                               % (_where(fname, i), len(r), len(header)))
+    return pd.DataFrame(rows[1:], columns=header, dtype=str)
 
 
 def _validate_meta(meta, fname="dataset.json"):

@@ -1,0 +1,204 @@
+"""Measurement dataset contract: loading, defaults, atomic writing, and every bad-input path."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.config import PAPER_TABLE3_DIR
+from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, Dataset, DatasetError,
+                                   load_dataset, main, measurement_table, write_dataset)
+
+
+@pytest.fixture
+def ds_dir(tmp_path):
+    d = tmp_path / "ds"
+    shutil.copytree(PAPER_TABLE3_DIR, d)
+    return d
+
+
+def _edit(path, old, new):
+    text = Path(path).read_text()
+    assert old in text, old
+    Path(path).write_text(text.replace(old, new, 1))
+
+
+def test_paper_table3_loads():
+    ds = load_dataset(PAPER_TABLE3_DIR)
+    assert ds.name == "paper_table3" and ds.velocity_frame == "lab"
+    assert len(ds.conditions) == 8 and len(ds.summary) == 8
+    assert ds.conditions["frequency_hz"].dtype == float
+    assert "v_mean_dem_paper_m_s" in ds.summary.columns          # unknown column kept
+    assert set(ds.missing_sd) == {"v_mean_sd_m_s", "f_col_sd_hz"}
+    assert len(ds.missing_sd["v_mean_sd_m_s"]) == 8
+    assert ds.condition_label("f22.5_d20.6") == "20.6 mm ball at 22.5 Hz"
+    # f_col = 2 f at all eight conditions (the paper's statement)
+    m = ds.summary.merge(ds.conditions, on="condition_id")
+    assert np.allclose(m["f_col_hz"], 2 * m["frequency_hz"])
+
+
+def test_measurement_table_defaults():
+    ds = load_dataset(PAPER_TABLE3_DIR)
+    t = measurement_table(ds)
+    assert t.shape == (16, 5)
+    v = t.loc[t["observable"] == "v_mean_m_s"]
+    assert np.allclose(v["sd"], DEFAULT_V_REL_SD * v["value"])
+    assert np.allclose(t.loc[t["observable"] == "f_col_hz", "sd"], DEFAULT_F_COL_SD_HZ)
+    assert t["sd_default"].all()
+    t2 = measurement_table(ds, v_rel_sd=0.03, f_col_sd_hz=2.0)
+    assert np.allclose(t2.loc[t2["observable"] == "f_col_hz", "sd"], 2.0)
+    assert np.allclose(t2.loc[t2["observable"] == "v_mean_m_s", "sd"], 2 * v["sd"].to_numpy())
+
+
+def test_given_sd_is_used(ds_dir):
+    _edit(ds_dir / "summary.csv", "f30_d17.5,2.57,,60,,", "f30_d17.5,2.57,0.05,60,0.5,")
+    ds = load_dataset(ds_dir)
+    t = measurement_table(ds).set_index(["condition_id", "observable"])
+    assert t.loc[("f30_d17.5", "v_mean_m_s"), "sd"] == 0.05
+    assert t.loc[("f30_d17.5", "f_col_hz"), "sd"] == 0.5
+    assert not t.loc[("f30_d17.5", "v_mean_m_s"), "sd_default"]
+    assert "f30_d17.5" not in ds.missing_sd["v_mean_sd_m_s"]
+
+
+def _full_dataset(tmp_path):
+    ds = load_dataset(PAPER_TABLE3_DIR)
+    t = np.arange(200) / 2134.0
+    ds.tracks = {"f25_d20.6": pd.DataFrame({"t_s": t, "x_m": 0.01 * np.sin(2 * np.pi * 25 * t),
+                                            "y_m": np.zeros_like(t)})}
+    vid = tmp_path / "clip.avi"
+    vid.write_bytes(b"not really a video")
+    ds.video = {"fps": 2134.0, "ball_diameter_px": 70.0}
+    ds.video_files = {"f25_d20.6": vid}
+    ds.yields = pd.DataFrame({"condition_id": ["f25_d20.6"] * 3, "time_min": [5.0, 10.0, 15.0],
+                              "yield_pct": [10.0, 20.0, 31.0], "phase": ["powder"] * 3})
+    return ds
+
+
+def test_write_load_round_trip(tmp_path):
+    ds = _full_dataset(tmp_path)
+    out = write_dataset(ds, tmp_path / "copy")
+    back = load_dataset(out)
+    assert back.condition_ids == ds.condition_ids
+    assert np.allclose(back.summary["v_mean_m_s"], ds.summary["v_mean_m_s"])
+    assert back.missing_sd == ds.missing_sd                      # empty sd stays empty
+    assert np.allclose(back.tracks["f25_d20.6"]["x_m"], ds.tracks["f25_d20.6"]["x_m"])
+    assert back.video == ds.video and set(back.video_files) == {"f25_d20.6"}
+    assert list(back.yields["yield_pct"]) == [10.0, 20.0, 31.0]
+    assert list(back.yields["phase"]) == ["powder"] * 3
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_write_is_atomic_and_refuses_overwrite(tmp_path):
+    ds = _full_dataset(tmp_path)
+    out = write_dataset(ds, tmp_path / "copy")
+    with pytest.raises(FileExistsError):
+        write_dataset(ds, out)
+    bad = _full_dataset(tmp_path)
+    bad.conditions = bad.conditions.copy()
+    bad.conditions.loc[0, "frequency_hz"] = -30.0
+    with pytest.raises(DatasetError, match="negative frequency"):
+        write_dataset(bad, out, overwrite=True)
+    assert load_dataset(out).conditions["frequency_hz"].iat[0] == 30.0   # old copy intact
+    assert not (tmp_path / "never").exists()
+    with pytest.raises(DatasetError):
+        write_dataset(bad, tmp_path / "never")
+    assert not (tmp_path / "never").exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    ds.summary = ds.summary.copy()
+    ds.summary.loc[0, "v_mean_m_s"] = 9.0
+    write_dataset(ds, out, overwrite=True)
+    assert load_dataset(out).summary["v_mean_m_s"].iat[0] == 9.0
+
+
+# file, old text, new text, phrases the error must contain (file, row, column)
+BAD = [
+    ("summary.csv", "v_mean_m_s,", "v_mean_mm_s,", ["summary.csv", "v_mean_mm_s", "wrong unit"]),
+    ("conditions.csv", "frequency_hz", "frequency_rpm", ["conditions.csv", "frequency_rpm",
+                                                         "wrong unit"]),
+    ("conditions.csv", "frequency_hz", "frequency", ["conditions.csv", "no unit"]),
+    ("conditions.csv", ",ball_diameter_mm", ",ball_size", ["conditions.csv", "ball_diameter_mm",
+                                                            "missing"]),
+    ("summary.csv", ",f_col_sd_hz", ",f_col_sd", ["summary.csv", "f_col_sd_hz", "no unit"]),
+    ("summary.csv", "f30_d20.6,2.50,", "f30_d20.6,NaN,", ["summary.csv", "row 2", "v_mean_m_s"]),
+    ("summary.csv", "f30_d20.6,2.50,", "f30_d20.6,,", ["summary.csv", "row 2", "v_mean_m_s",
+                                                        "empty"]),
+    ("summary.csv", "f30_d20.6,2.50,", "f30_d20.6,fast,", ["row 2", "v_mean_m_s", "not a number"]),
+    ("conditions.csv", "f25_d17.5,25.0", "f25_d17.5,-25.0", ["conditions.csv", "row 5",
+                                                             "frequency_hz", "negative frequency"]),
+    ("conditions.csv", "f25_d17.5,25.0,17.5", "f25_d17.5,25.0,0", ["row 5", "ball_diameter_mm"]),
+    ("conditions.csv", "f30_d20.6,", "f30_d17.5,", ["conditions.csv", "row 2", "duplicate"]),
+    ("summary.csv", "f30_d20.6,", "f30_d17.5,", ["summary.csv", "row 2", "duplicate"]),
+    ("summary.csv", "f30_d20.6,", "f31_d20.6,", ["summary.csv", "row 2", "unknown condition_id"]),
+    ("summary.csv", "f30_d20.6,2.50,,", "f30_d20.6,2.50,-0.1,", ["row 2", "v_mean_sd_m_s"]),
+    ("dataset.json", '"lab"', '"camera"', ["dataset.json", "velocity_frame"]),
+    ("dataset.json", '"source"', '"origin"', ["dataset.json", "'source'"]),
+    ("dataset.json", "{", "{{", ["dataset.json", "malformed JSON"]),
+    ("conditions.csv", ",ball_diameter_mm", ",radius", ["conditions.csv", "ball_diameter_mm",
+                                                         "missing"]),
+    ("conditions.csv", "1\n", "1,extra\n", ["conditions.csv", "row 1", "malformed CSV"]),
+]
+
+
+@pytest.mark.parametrize("fname,old,new,phrases", BAD, ids=[b[2][:20] for b in BAD])
+def test_bad_input_raises_one_clear_error(ds_dir, fname, old, new, phrases):
+    _edit(ds_dir / fname, old, new)
+    with pytest.raises(DatasetError) as exc:
+        load_dataset(ds_dir)
+    msg = str(exc.value)
+    for p in phrases:
+        assert p in msg, (p, msg)
+    assert str(ds_dir) in msg
+
+
+def test_bad_optional_files(ds_dir):
+    (ds_dir / "tracks").mkdir()
+    (ds_dir / "tracks" / "f99_d1.csv").write_text("t_s,x_m,y_m\n0,0,0\n0.001,0,0\n")
+    with pytest.raises(DatasetError, match=r"tracks/f99_d1.csv.*unknown condition_id"):
+        load_dataset(ds_dir)
+    (ds_dir / "tracks" / "f99_d1.csv").unlink()
+    (ds_dir / "tracks" / "f25_d17.5.csv").write_text("t_s,x_m,y_m\n0,0,0\n0.002,0,0\n0.001,0,0\n")
+    with pytest.raises(DatasetError, match=r"f25_d17.5.csv.*row 3.*t_s.*increase"):
+        load_dataset(ds_dir)
+    (ds_dir / "tracks" / "f25_d17.5.csv").write_text("t_s,x_mm,y_m\n0,0,0\n")
+    with pytest.raises(DatasetError, match=r"x_mm.*wrong unit"):
+        load_dataset(ds_dir)
+    shutil.rmtree(ds_dir / "tracks")
+    (ds_dir / "yields.csv").write_text("condition_id,time_min,yield_pct\nf25_d17.5,5,10\n"
+                                       "f25_d17.5,10,130\n")
+    with pytest.raises(DatasetError, match=r"yields.csv, row 2 \(line 3\), column 'yield_pct'"):
+        load_dataset(ds_dir)
+    (ds_dir / "yields.csv").write_text("condition_id,time_h,yield_pct\nf25_d17.5,5,10\n")
+    with pytest.raises(DatasetError, match=r"time_h.*wrong unit.*time_min"):
+        load_dataset(ds_dir)
+    (ds_dir / "yields.csv").unlink()
+    (ds_dir / "videos").mkdir()
+    (ds_dir / "videos" / "f25_d17.5.avi").write_bytes(b"x")
+    with pytest.raises(DatasetError, match="video.json"):
+        load_dataset(ds_dir)
+    (ds_dir / "videos" / "video.json").write_text(json.dumps({"ball_diameter_px": 70}))
+    with pytest.raises(DatasetError, match="fps"):
+        load_dataset(ds_dir)
+    (ds_dir / "videos" / "video.json").write_text(json.dumps({"fps": 2134}))
+    with pytest.raises(DatasetError, match="ball_diameter_px"):
+        load_dataset(ds_dir)
+    (ds_dir / "videos" / "video.json").write_text(json.dumps({"fps": 2134, "m_per_px": 3e-4}))
+    assert load_dataset(ds_dir).video["m_per_px"] == 3e-4
+
+
+def test_missing_files(tmp_path, ds_dir):
+    with pytest.raises(DatasetError, match="not found"):
+        load_dataset(tmp_path / "nope")
+    (ds_dir / "summary.csv").unlink()
+    with pytest.raises(DatasetError, match="summary.csv: file is missing"):
+        load_dataset(ds_dir)
+
+
+def test_cli(ds_dir, capsys):
+    assert main([str(PAPER_TABLE3_DIR)]) == 0
+    assert "8 conditions" in capsys.readouterr().out
+    _edit(ds_dir / "summary.csv", "v_mean_m_s,", "v_mean_mm_s,")
+    assert main([str(ds_dir)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "v_mean_mm_s" in err
