@@ -30,7 +30,7 @@ reversal and lowers mean |v| by ~ window / (4 * frames between impacts) - severa
 even the raw difference across the impact frame cuts the corner (-0.5 frame per impact: -1.4 % at
 30 Hz, 2134 fps). Hence, by default (``kink_correction=True``): at each detected collision a local
 test decides between a smooth turn (velocity linear through the reversal, e.g. a sinusoid) and a
-kink (a jump); at a kink the three frame-differences around it are dropped, the velocity is
+kink (a jump between similar speeds of opposite sign); at a kink the three frame-differences around it are dropped, the velocity is
 smoothed on each side separately, and the speed is interpolated across the dropped frames (the
 time integral of the speed is a trapezoid over the kept samples). ``kink_correction=False`` is
 the paper's plain recipe (smoothing straight through), kept to measure its bias.
@@ -414,8 +414,14 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
                 A1 = np.vstack([idx, np.ones(len(idx))]).T
                 res = raw[idx] - A1 @ np.linalg.lstsq(A1, raw[idx], rcond=None)[0]
                 rms_line = float(np.sqrt(np.mean(res ** 2)))
+                mL, mR = abs(np.mean(raw[L])), abs(np.mean(raw[R]))
                 jump = abs(np.mean(raw[R]) - np.mean(raw[L]))
-                if rms_line > max(4.0 * sig_vraw, 0.1 * jump):
+                # a kink: the velocity jumps (not linear through the turn) AND the ball is fast
+                # on both sides (a reversal). A jump to a near-stop (jar frame, small e: the
+                # relative speed drops to e*u, then turns smoothly) is left to the smoother:
+                # its |v| minimum is not at the impact, and interpolating over it overshoots.
+                if rms_line > max(4.0 * sig_vraw, 0.1 * jump) and \
+                        min(mL, mR) >= 0.3 * max(mL, mR):
                     # locate the straddling difference: the sample nearest the sign change of raw
                     win = np.arange(max(j - 2, 0), min(j + 4, b - a))
                     kc = win[np.argmin(np.abs(raw[win]))]

@@ -1,0 +1,112 @@
+"""Tracking a ball in small synthetic videos with known ground truth; bad inputs."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.observe import observe_track
+from analysis.synthvideo import Camera, bounce_track, render_video, write_video
+from analysis.tracking import (BallNotFoundError, TrackingError, VideoReadError, main,
+                               track_video, track_frames)
+
+FPS = 2134.0
+
+
+def small_cam(**kw):
+    # 256x128 px, ball ~51 px across: small enough to be quick, large enough to be realistic
+    base = dict(width_px=256, height_px=128, m_per_px=4e-4, exposure_s=100e-6, noise_sigma=2.0,
+                flicker=0.03, occluder=True, occluder_x_px=200.0, occluder_width_px=6.0)
+    base.update(kw)
+    return Camera(**base)
+
+
+@pytest.fixture(scope="module")
+def video30(tmp_path_factory):
+    d = tmp_path_factory.mktemp("v30")
+    b = bounce_track(30.0, 0.25)
+    truth = render_video(b, d / "v.mkv", small_cam(), seed=3)
+    return d / "v.mkv", truth, b
+
+
+def test_track_error_and_observables(video30):
+    path, truth, b = video30
+    res = track_video(path, FPS, m_per_px=4e-4, ball_diameter_m=0.0206)
+    tk = res.track
+    err = np.hypot(tk.x_px - truth.x_px, tk.y_px - truth.y_px)
+    assert res.n_lost == 0
+    assert np.sqrt(np.mean(err ** 2)) <= 0.5
+    o = observe_track(tk.t_s, tk.x_m, tk.y_m, fps=FPS, frequency_hz=30.0, quality=tk.quality)
+    t0, t1 = truth.t_s.iloc[0], truth.t_s.iloc[-1]
+    assert abs(o.v_mean_m_s / b.true_mean_speed(t0, t1) - 1) < 0.01
+    true_f = len(b.reversal_times(t0, t1)) / (t1 - t0)
+    assert abs(o.f_col_hz - true_f) <= 1.0 / (t1 - t0) + 1e-9  # at most one edge reversal off
+
+
+def test_scale_from_ball_diameter(video30):
+    path, truth, b = video30
+    res = track_video(path, FPS, ball_diameter_m=0.0206, m_per_px=None)
+    assert res.scale_source == "ball_diameter"
+    assert res.m_per_px == pytest.approx(4e-4, rel=0.01)
+
+
+def test_cli_writes_track(video30, tmp_path, capsys):
+    path, truth, _ = video30
+    out = tmp_path / "track.csv"
+    assert main([str(path), "--fps", "2134", "--m-per-px", "4e-4", "--out", str(out)]) == 0
+    df = pd.read_csv(out)
+    assert list(df.columns[:4]) == ["t_s", "x_m", "y_m", "quality"]
+    assert len(df) == len(truth)
+
+
+def test_long_loss_is_flagged_not_interpolated(tmp_path):
+    b = bounce_track(25.0, 0.1)
+    cam = small_cam(occluder=False, noise_sigma=1.0)
+    path = tmp_path / "v.mkv"
+    truth = render_video(b, path, cam)
+    from analysis.tracking import read_frames
+    frames = read_frames(path)
+    for i in range(60, 90):  # the ball vanishes for 30 frames (a hand in front of the lens)
+        frames[i] = np.full_like(frames[i], int(cam.background))
+    res = track_frames(frames, FPS, m_per_px=4e-4, ball_diameter_m=0.0206)
+    q = res.track.quality.to_numpy()
+    assert np.all(q[60:90] == "lost") and res.track.x_m[60:90].isna().all()
+    assert "reacquired" in set(q[90:95])
+    ok = q != "lost"
+    err = np.hypot(res.track.x_px - truth.x_px, res.track.y_px - truth.y_px)[ok]
+    assert np.sqrt(np.mean(err ** 2)) <= 0.5
+
+
+def test_bad_videos(tmp_path):
+    with pytest.raises(VideoReadError, match="no such"):
+        track_video(tmp_path / "missing.mkv", FPS, m_per_px=4e-4)
+    empty = tmp_path / "empty.mkv"
+    empty.write_bytes(b"")
+    with pytest.raises(VideoReadError, match="empty"):
+        track_video(empty, FPS, m_per_px=4e-4)
+    corrupt = tmp_path / "corrupt.mkv"
+    corrupt.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    with pytest.raises(VideoReadError):
+        track_video(corrupt, FPS, m_per_px=4e-4)
+    with pytest.raises(VideoReadError, match="no decodable frame"):
+        track_frames(iter([]), FPS, m_per_px=4e-4, ball_diameter_m=0.0206)
+    with pytest.raises(TrackingError, match="fps"):
+        track_frames(iter([]), 0, m_per_px=4e-4)
+    with pytest.raises(TrackingError, match="fps"):
+        track_frames(iter([]), -5.0, m_per_px=4e-4)
+
+
+def test_ball_never_found(tmp_path):
+    frames = [np.full((128, 256), 70, np.uint8) + np.random.default_rng(i).integers(
+        0, 3, (128, 256), dtype=np.uint8) for i in range(20)]
+    p = tmp_path / "noball.mkv"
+    write_video(p, frames, FPS, (256, 128))
+    with pytest.raises(BallNotFoundError, match="never found"):
+        track_video(p, FPS, m_per_px=4e-4, ball_diameter_m=0.0206)
+
+
+def test_cli_bad_input_exit_code(tmp_path, capsys):
+    assert main([str(tmp_path / "nope.mkv"), "--fps", "2134", "--m-per-px", "4e-4",
+                 "--out", str(tmp_path / "t.csv")]) == 2
+    assert "error" in capsys.readouterr().err
+    assert not (tmp_path / "t.csv").exists()
+    assert main([str(tmp_path / "nope.mkv"), "--fps", "-1", "--m-per-px", "4e-4",
+                 "--out", str(tmp_path / "t.csv")]) == 2
