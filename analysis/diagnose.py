@@ -760,13 +760,115 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
                            strength_se=after.stderr[name])
 
 
+def _load_model_factory(spec):
+    """'package.module:function' -> the function."""
+    import importlib
+    if ":" not in spec:
+        raise ValueError("--model must look like package.module:function, got %r" % spec)
+    mod, func = spec.split(":", 1)
+    try:
+        return getattr(importlib.import_module(mod), func)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError("--model %s: %s" % (spec, exc)) from None
+
+
+def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = None,
+                    dataset_name: str = "") -> "Path":
+    """Write diagnosis.csv, structure.csv, diagnosis.md, ranking.png [, staircase.csv,
+    before_after.csv, staircase.png] into ``out_dir`` atomically (temp folder, rename)."""
+    import os
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from analysis.plotting import compare_plots
+
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
+    try:
+        diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
+        diag.structure.to_csv(tmp / "structure.csv", index=False)
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        compare_plots.plot_effect_ranking(diag, ax=ax)
+        fig.tight_layout()
+        fig.savefig(tmp / "ranking.png", dpi=120)
+        plt.close(fig)
+        cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength",
+                "strength_se", "footprint", "absorbed_frac", "identifiable", "significant"]
+        md = ["# Which effect is missing? %s" % dataset_name, "", "**Verdict:** %s" % diag.verdict,
+              "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        for _, r in diag.table.iterrows():
+            md.append("| " + " | ".join(("%.3g" % r[c]) if isinstance(r[c], float) else str(r[c])
+                                        for c in cols) + " |")
+        md += ["", "![ranking](ranking.png)", ""]
+        if added is not None:
+            added.staircase.to_csv(tmp / "staircase.csv", index=False)
+            added.to_frame().reset_index().to_csv(tmp / "before_after.csv", index=False)
+            fig, ax = plt.subplots(figsize=(5, 3.5))
+            compare_plots.plot_chi2_staircase(added.staircase, ax=ax)
+            fig.tight_layout()
+            fig.savefig(tmp / "staircase.png", dpi=120)
+            plt.close(fig)
+            md += ["## Adding %s" % added.effect, "", added.summary(), "",
+                   "![staircase](staircase.png)", ""]
+        (tmp / "diagnosis.md").write_text("\n".join(md))
+        if out_dir.exists():
+            old = Path(tempfile.mkdtemp(prefix=".%s.old-" % out_dir.name, dir=out_dir.parent))
+            os.replace(out_dir, old / out_dir.name)
+            os.replace(tmp, out_dir)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir
+
+
 def main(argv=None):
+    """``python -m analysis.diagnose --dataset DIR --model pkg.mod:factory --out DIR [--add X]``
+
+    ``factory(dataset)`` returns a dict with keys ``predict``, ``base_params``, ``effects`` and
+    optionally ``model_se``, ``crn_correlation``, ``fixed_effects``.
+    """
+    from analysis.measurements import DatasetError, load_dataset
+
     ap = argparse.ArgumentParser(
-        description="Effect diagnosis is a library stage: call analysis.diagnose.diagnose("
-        "predict, dataset, base_params, effects, model_se=...) with the twin's predict "
-        "function (see the module docstring). This CLI prints the method summary.")
-    ap.parse_args(argv)
-    print(__doc__)
+        description="Diagnose which candidate effect is missing from the twin, against a "
+        "measurement dataset (see the module docstring for the method).")
+    ap.add_argument("--dataset", required=True, help="dataset folder data/measurements/<name>/")
+    ap.add_argument("--model", required=True,
+                    help="package.module:function; function(dataset) returns a dict with "
+                    "predict, base_params, effects [, model_se, crn_correlation, fixed_effects]")
+    ap.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    ap.add_argument("--add", help="effect to switch on afterwards ('best': the verdict's)")
+    ap.add_argument("--alpha", type=float, default=0.01, help="family-wise level")
+    args = ap.parse_args(argv)
+    try:
+        ds = load_dataset(args.dataset)
+        problem = _load_model_factory(args.model)(ds)
+        kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects")
+              if k in problem}
+        diag = diagnose(problem["predict"], ds, problem["base_params"], problem["effects"],
+                        alpha=args.alpha, **kw)
+        added = None
+        name = diag.best if args.add == "best" else args.add
+        if name:
+            kw.pop("crn_correlation", None)
+            added = add_effect(problem["predict"], ds, problem["base_params"],
+                               problem["effects"], name, **kw)
+        write_diagnosis(diag, args.out, added, ds.name)
+    except (DatasetError, ValueError, KeyError, TypeError) as exc:
+        print("error: %s" % exc, file=sys.stderr)
+        return 2
+    print(diag.verdict)
+    if added is not None:
+        print(added.summary())
+    print("wrote %s" % args.out)
     return 0
 
 

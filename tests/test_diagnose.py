@@ -257,3 +257,43 @@ def test_bad_inputs():
         diagnose(lambda th, ef: predict(th, ef).to_numpy(), obs, BASE, EFFECTS)
     with pytest.raises(ValueError, match="unknown effect"):
         add_effect(predict, obs, BASE, EFFECTS, "gremlins", model_se=se)
+
+
+CLI_HIDDEN, CLI_SEED = {"ball_spin": 1.0}, 11
+
+
+def cli_problem(dataset):
+    """Model factory for the CLI test (python -m analysis.diagnose --model ...)."""
+    _, predict, se = make(CLI_HIDDEN, CLI_SEED)
+    return {"predict": predict, "base_params": BASE, "effects": EFFECTS, "model_se": se}
+
+
+def test_cli_diagnose_and_add(tmp_path, capsys):
+    from analysis import diagnose as diagmod
+    from analysis.measurements import Dataset, load_dataset, write_dataset
+    obs, _, _ = make(CLI_HIDDEN, CLI_SEED)
+    wide = obs.pivot(index="condition_id", columns="observable")
+    summ = pd.DataFrame({"condition_id": wide.index,
+                         "v_mean_m_s": wide[("value", "v_mean_m_s")].to_numpy(),
+                         "v_mean_sd_m_s": wide[("sd", "v_mean_m_s")].to_numpy(),
+                         "f_col_hz": wide[("value", "f_col_hz")].to_numpy(),
+                         "f_col_sd_hz": wide[("sd", "f_col_hz")].to_numpy()})
+    ds = Dataset(name="toy_hidden_spin", description="toy", source="test",
+                 velocity_frame="lab", conditions=CONDS, summary=summ)
+    ds_dir = write_dataset(ds, tmp_path / "ds")
+    assert load_dataset(ds_dir).missing_sd == {}
+    out = tmp_path / "out"
+    rc = diagmod.main(["--dataset", str(ds_dir), "--model", "tests.test_diagnose:cli_problem",
+                       "--out", str(out), "--add", "best"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "missing effect: ball_spin" in printed
+    assert {p.name for p in out.iterdir()} == {
+        "diagnosis.csv", "structure.csv", "diagnosis.md", "ranking.png", "staircase.csv",
+        "before_after.csv", "staircase.png"}
+    stair = pd.read_csv(out / "staircase.csv")
+    assert stair["chi2_dof"].iat[2] <= 1.5 and stair["chi2_dof"].iat[1] >= 3 * stair["chi2_dof"].iat[2]
+    rc = diagmod.main(["--dataset", str(ds_dir), "--model", "tests.test_diagnose:nope",
+                       "--out", str(tmp_path / "out2")])
+    assert rc == 2 and not (tmp_path / "out2").exists()
+    assert capsys.readouterr().err.count("\n") == 1
