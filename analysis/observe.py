@@ -659,3 +659,60 @@ def operator_bias(recording, frame: str = "lab", fps: float | None = None,
     out["relative"] = out["difference"] / out["direct"]
     out["frame"] = frame
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# CLI
+# --------------------------------------------------------------------------------------------
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m analysis.observe",
+        description="Observation operator: track CSV or twin recording -> v_mean, E_kin, f_col.")
+    p.add_argument("track", nargs="?", help="track CSV (t_s, x_m, y_m[, quality, jar_x_m])")
+    p.add_argument("--recording", help="twin run folder: operator, direct figures and bias")
+    p.add_argument("--fps", type=float, default=None)
+    p.add_argument("--frequency-hz", type=float, default=None)
+    p.add_argument("--mass-kg", type=float, default=None)
+    p.add_argument("--frame", choices=("lab", "jar"), default="lab")
+    p.add_argument("--plain", action="store_true", help="no kink correction (paper's recipe)")
+    p.add_argument("--noise-study", action="store_true",
+                   help="synthetic-video noise/blur study -> results/observe/noise_blur_study.csv")
+    p.add_argument("--out", help="CSV for the one-row summary (or the study table)")
+    a = p.parse_args(argv)
+    try:
+        if a.noise_study:
+            from analysis.synthvideo import noise_blur_study
+            df = noise_blur_study(a.out)
+            with pd.option_context("display.width", 220, "display.max_columns", 40):
+                print(df.round(4).to_string(index=False))
+            return 0
+        kw = dict(fps=a.fps, frame=a.frame, kink_correction=not a.plain)
+        if a.frequency_hz is not None:
+            kw["frequency_hz"] = a.frequency_hz
+        if a.mass_kg is not None:
+            kw["mass_kg"] = a.mass_kg
+        if a.recording:
+            table = operator_bias(a.recording, **kw)
+            print(table.to_string(index=False))
+            out_df = table
+        elif a.track:
+            res = observe_track_file(a.track, **kw)
+            out_df = res.to_frame()
+            print(out_df.T.to_string(header=False))
+        else:
+            p.error("give a track CSV, --recording DIR or --noise-study")
+            return 2
+        if a.out:
+            out = Path(a.out)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            tmp = out.with_name(f".tmp-{out.name}")
+            out_df.to_csv(tmp, index=False)
+            tmp.replace(out)
+    except (ObserveError, ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -170,12 +170,21 @@ def _crossings(win: np.ndarray, level: float):
 
 def _fit_circle(x: np.ndarray, y: np.ndarray):
     """Algebraic (Kasa) circle fit: returns xc, yc, r."""
-    A = np.column_stack([x, y, np.ones_like(x)])
-    b = x * x + y * y
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    # normal equations of [x y 1] p = x^2 + y^2, centred for conditioning (3x3 solve: fast)
+    mx, my = x.mean(), y.mean()
+    u, v = x - mx, y - my
+    b = u * u + v * v
+    suu, svv, suv = (u * u).sum(), (v * v).sum(), (u * v).sum()
+    n = float(len(u))
+    M = np.array([[suu, suv, 0.0], [suv, svv, 0.0], [0.0, 0.0, n]])
+    rhs = np.array([(u * b).sum(), (v * b).sum(), b.sum()])
+    try:
+        sol = np.linalg.solve(M, rhs)
+    except np.linalg.LinAlgError:
+        return float("nan"), float("nan"), float("nan")
     xc, yc = 0.5 * sol[0], 0.5 * sol[1]
     r2 = sol[2] + xc * xc + yc * yc
-    return xc, yc, math.sqrt(r2) if r2 > 0 else float("nan")
+    return xc + mx, yc + my, math.sqrt(r2) if r2 > 0 else float("nan")
 
 
 def refine_centre(gray: np.ndarray, x_guess: float, y_guess: float, r_exp: float,
@@ -330,10 +339,42 @@ class TrackResult:
                               "n_reacquired": self.n_reacquired, "wall_s": self.wall_s}])
 
 
+class _ScaledMosse:
+    """MOSSE run on a frame shrunk by an integer factor (box ~32 px): it only has to be coarse,
+    the rim fit at full resolution gives the sub-pixel centre; a 128 px box costs ~2 ms/frame."""
+
+    def __init__(self, gray, xc, yc, r):
+        cv2 = _cv2()
+        self.k = max(1, int(round(2.4 * r / 32.0)))
+        self.tr = _new_mosse_raw(self._small(gray), self._to_s(xc), self._to_s(yc), r / self.k)
+
+    def _small(self, gray):
+        if self.k == 1:
+            return gray
+        cv2 = _cv2()
+        H, W = gray.shape
+        return cv2.resize(gray, (W // self.k, H // self.k), interpolation=cv2.INTER_AREA)
+
+    def _to_s(self, v):
+        return (v - (self.k - 1) / 2.0) / self.k
+
+    def update(self, gray):
+        ok, bb = self.tr.update(self._small(gray))
+        if not ok:
+            return False, None
+        k = self.k
+        return True, (bb[0] * k + (k - 1) / 2.0, bb[1] * k + (k - 1) / 2.0, bb[2] * k, bb[3] * k)
+
+
 def _new_mosse(gray, xc, yc, r):
+    return _ScaledMosse(gray, xc, yc, r)
+
+
+def _new_mosse_raw(gray, xc, yc, r):
     cv2 = _cv2()
     tr = cv2.legacy.TrackerMOSSE_create()
-    s = int(round(2.4 * r))
+    # box of an FFT-friendly size (a prime factor like 31 makes MOSSE ~15x slower)
+    s = cv2.getOptimalDFTSize(int(round(2.4 * r)))
     tr.init(gray, (int(round(xc - s / 2)), int(round(yc - s / 2)), s, s))
     return tr
 
@@ -434,8 +475,9 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
                     q = "reacquired"
                     mosse = _new_mosse(gray, res[0], res[1], r_exp)
                     n_since_init = 0
-            elif ok_m is False or (ok_m and guess == (px, py)):
-                # MOSSE lost it but the refinement held: re-anchor MOSSE
+            elif (ok_m is False or guess == (px, py)) and n_since_init >= 25:
+                # MOSSE lost it (low PSR) or drifted but the refinement held: re-anchor MOSSE
+                # (at most every 25 frames: an init costs ~50 updates)
                 mosse = _new_mosse(gray, res[0], res[1], r_exp)
                 n_since_init = 0
         if res is None:
