@@ -502,7 +502,7 @@ def _hinge_sse(e, x, e1, e2):
     return (r * r).sum(axis=1), coef
 
 
-def _boundaries_continuous(e, x, min_points=(3, 2, 2), n_grid=60, n_refine=2):
+def _boundaries_continuous(e, x, min_points=(3, 2, 2), n_grid=60, n_refine=4):
     """Continuous hinge: X = b + a*min(E,E1) + s*clip(E-E1, 0, E2-E1); profile LS over (E1, E2)."""
     es = np.sort(e)
     n = es.size
