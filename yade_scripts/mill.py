@@ -256,7 +256,7 @@ class Twin(object):
         self.wall_start = time.time()
         self.rows = []
         self.impacts = []
-        self.event = None
+        self.events = {}
         self.phase = "ramp" if cfg["protocol"] == "mill" and cfg["ramp_s"] > 0 else "settle"
         if cfg["protocol"] == "free":
             self.phase = "record"
@@ -430,83 +430,84 @@ class Twin(object):
         w = 2 * math.pi * self.f_now
         return -self.A * w * w * math.sin(self.phase_at(t))
 
+    @staticmethod
+    def region_of(n_out):
+        """Which surface a contact normal (ball centre -> contact point) belongs to."""
+        if n_out[0] >= 0.5:
+            return "end+"
+        if n_out[0] <= -0.5:
+            return "end-"
+        return "cylinder"
+
     def on_contact_check(self):
         """Detect ball-wall contact events and measure them.
 
-        Runs every ``k_free`` steps in flight and every ``k_contact`` steps in contact. The energy
-        an event dissipates comes from the jar-frame energy balance, which needs only smooth
-        quantities: E_diss = KE_rel(before) - KE_rel(after) + integral of m (g - a_jar) . v_rel dt
-        (KE_rel includes spin; the wall is at rest in the jar frame, so the contact's power is
-        minus the dissipation once its elastic energy has returned to zero).
+        A contact event is an uninterrupted contact with one surface: the +x end cap, the -x end
+        cap or the cylinder (a ball rolling on the cylinder that then hits an end makes two
+        events). Runs every ``k_free`` steps while no event is young and every ``k_contact`` steps
+        while one is. The energy an event dissipates comes from the jar-frame energy balance,
+        which needs only smooth quantities: E_diss = KE_rel(before) - KE_rel(after) + integral of
+        m (g - a_jar) . v_rel dt (KE_rel includes spin; the wall is at rest in the jar frame, so
+        the contacts' power is minus their dissipation once their elastic energy is back to 0).
+        Concurrent events (rolling on the cylinder while hitting an end) each get the whole
+        balance over their own interval.
         """
         t = O.time
         intrs = [i for i in O.interactions.withBody(self.ball_id) if i.isReal]
         s = O.bodies[self.ball_id].state
         vrel = s.vel - O.bodies[self.jar_ids[0]].state.vel
-        if not intrs and self.event is None:  # in flight: remember the state, nothing else
-            self.prev_free = (t, vrel, s.angVel, s.inertia)
+        if not intrs and not self.events:  # in flight: remember the state, nothing else
+            self.prev_state = (t, vrel, s.angVel, s.inertia)
             return
-        w = s.angVel
-        ke = 0.5 * self.mass * vrel.squaredNorm() + 0.5 * (s.inertia[0] * w[0] ** 2
-                                                             + s.inertia[1] * w[1] ** 2
-                                                             + s.inertia[2] * w[2] ** 2)
-        g_now = self.mass * (-self.cfg["gravity_m_s2"] * vrel[2]
-                             - self.jar_acceleration(t) * vrel[0])
-        ev = self.event
-        if ev is not None:
-            ev["w_ext"] += 0.5 * (ev["g_last"] + g_now) * (t - ev["t_last"])
-            ev["g_last"], ev["t_last"] = g_now, t
-        if intrs:
-            if len(intrs) > 1 or self.suppressed:
-                self.merge_contacts(intrs)
+        now = self.flight_state((t, vrel, s.angVel, s.inertia))
+        prev = self.flight_state(self.prev_state) or now
+        for ev in self.events.values():
+            ev["w_ext"] += 0.5 * (ev["g_last"] + now["g"]) * (t - ev["t_last"])
+            ev["g_last"], ev["t_last"] = now["g"], t
+        if len(intrs) > 1 or self.suppressed:
+            self.merge_contacts(intrs)
+        by_region = {}
+        for i in intrs:
+            cp = i.geom.contactPoint
+            n = cp - s.pos
+            n = n / max(n.norm(), 1e-300)
+            by_region.setdefault(self.region_of(n), []).append((i, n, cp))
+        for region, items in by_region.items():
             fsum = Vector3(0, 0, 0)
-            for i in intrs:
+            for i, n, cp in items:
                 fn = i.phys.normalForce
                 fsum += fn if i.id2 == self.ball_id else -fn
             fmag = fsum.norm()
-            cp = intrs[0].geom.contactPoint
-            n_here = cp - s.pos
-            n_here = n_here / max(n_here.norm(), 1e-300)
+            i0, n0, cp0 = items[0]
+            ev = self.events.get(region)
             if ev is None:
-                prev = self.flight_state(self.prev_free)
-                vr = prev["vrel"] if prev is not None else vrel
-                vn = vr.dot(n_here)
-                pen = max(i.geom.penetrationDepth for i in intrs)
-                t0 = t - (pen / vn if vn > 1e-9 else 0.0)
-                if prev is not None:
-                    t0 = max(t0, prev["t"])
-                ev = self.event = {
-                    "t_start": t0, "vn_in": vn, "vt_in": (vr - n_here * vn).norm(),
-                    "n_out": n_here, "fn_peak": 0.0, "n_facets": 0, "x_contact": 0.0,
-                    "cyl_time": 0.0,
-                    "ke0": prev["ke"] if prev is not None else ke,
-                    "w_ext": 0.0, "g_last": prev["g"] if prev is not None else g_now,
-                    "t_last": prev["t"] if prev is not None else t}
-                ev["w_ext"] += 0.5 * (ev["g_last"] + g_now) * (t - ev["t_last"])
-                ev["g_last"], ev["t_last"] = g_now, t
-                self.monitor.iterPeriod = self.k_contact
-            ev["n_facets"] = max(ev["n_facets"], len(intrs))
-            if abs(n_here[0]) < 0.5:
-                ev["cyl_time"] += self.monitor.iterPeriod * self.dt
+                vn = prev["vrel"].dot(n0)
+                pen = max(i.geom.penetrationDepth for i, _, _ in items)
+                t0 = t - (pen / vn if vn > 1e-9 else t - prev["t"])
+                t0 = min(t, max(t0, prev["t"]))
+                ev = self.events[region] = {
+                    "t_start": t0, "vn_in": vn, "vt_in": (prev["vrel"] - n0 * vn).norm(),
+                    "n_out": n0, "fn_peak": 0.0, "n_facets": 0, "x_contact": 0.0,
+                    "ke0": prev["ke"], "w_ext": 0.5 * (prev["g"] + now["g"]) * (t - prev["t"]),
+                    "g_last": now["g"], "t_last": t, "region": region}
+            ev["n_facets"] = max(ev["n_facets"], len(items))
             if fmag > ev["fn_peak"]:
                 ev["fn_peak"] = fmag
-                ev["n_out"] = n_here
-                ev["x_contact"] = cp[0] - self.jar_x()
-            if t - ev["t_start"] > 1e-3:  # a sustained (rolling) contact: sample coarsely
-                self.monitor.iterPeriod = self.k_free
-            return
-        if ev is not None:
-            n_out = ev["n_out"]
-            where = "end_cap" if abs(n_out[0]) >= 0.5 else "cylinder"
+                ev["n_out"] = n0
+                ev["x_contact"] = cp0[0] - self.jar_x()
+        for region in [r for r in self.events if r not in by_region]:
+            ev = self.events.pop(region)
             if self.phase == "record":
-                self.cyl_contact_time += ev["cyl_time"]
+                if region == "cylinder":
+                    self.cyl_contact_time += t - ev["t_start"]
                 self.impacts.append([len(self.impacts), ev["t_start"], t, ev["vn_in"], ev["vt_in"],
-                                     -vrel.dot(n_out), ev["fn_peak"],
-                                     ev["ke0"] - ke + ev["w_ext"], where, ev["x_contact"],
-                                     ev["n_facets"], -1])
-            self.event = None
-            self.monitor.iterPeriod = self.k_free
-        self.prev_free = (t, vrel, w, s.inertia)
+                                     -vrel.dot(ev["n_out"]), ev["fn_peak"],
+                                     ev["ke0"] - now["ke"] + ev["w_ext"],
+                                     "cylinder" if region == "cylinder" else "end_cap",
+                                     ev["x_contact"], ev["n_facets"], -1])
+        young = any(t - ev["t_start"] < 1e-3 for ev in self.events.values())
+        self.monitor.iterPeriod = self.k_contact if young else self.k_free
+        self.prev_state = (t, vrel, s.angVel, s.inertia)
 
     def flight_state(self, prev):
         """Energy and external power of a remembered flight state (or None)."""
@@ -519,7 +520,7 @@ class Twin(object):
         g = self.mass * (-self.cfg["gravity_m_s2"] * vrel[2] - self.jar_acceleration(t) * vrel[0])
         return {"t": t, "vrel": vrel, "ke": ke, "g": g}
 
-    prev_free = None
+    prev_state = None
     suppressed = False
     #: contacts whose normals are closer than this (cosine) are one contact with the surface
     MERGE_COS = math.cos(math.radians(30.0))
@@ -589,6 +590,9 @@ def group_collisions(impacts, frequency_hz):
     list of (t_start_s, side) per collision; side is +1 or -1 (the end hit, jar frame)
     """
     gap = 0.25 / frequency_hz if frequency_hz > 0 else 0.01
+    impacts.sort(key=lambda row: row[1])  # events are appended when they end
+    for k, row in enumerate(impacts):
+        row[0] = k
     groups = []
     last_end = None  # (side, t_end)
     for row in impacts:
