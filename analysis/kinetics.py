@@ -216,12 +216,21 @@ def energy_for_conditions(conditions: pd.DataFrame, inputs: pd.DataFrame) -> pd.
     Parameters
     ----------
     conditions : DataFrame - condition_id, frequency_hz, ball_diameter_mm
-    inputs : DataFrame - from :func:`table3_energy_inputs` or :func:`load_twin_energy_table`
+    inputs : DataFrame - from :func:`table3_energy_inputs` or :func:`load_twin_energy_table`, or
+        any table with frequency_hz, ball_diameter_m, v_mean_m_s, f_col_hz (e_kin_j and power_w
+        are computed when absent)
 
     Raises
     ------
     KineticsInputError if a condition has no matching (frequency, diameter) row.
     """
+    inputs = inputs.copy()
+    if "e_kin_j" not in inputs.columns:
+        inputs["e_kin_j"] = kinetic_energy_j(inputs["ball_diameter_m"].to_numpy(),
+                                             inputs["v_mean_m_s"].to_numpy())
+    inputs["power_w"] = inputs["e_kin_j"] * inputs["f_col_hz"]
+    if "source" not in inputs.columns:
+        inputs["source"] = "energy inputs (unlabelled)"
     rows = []
     for _, c in conditions.iterrows():
         m = inputs[np.isclose(inputs["frequency_hz"], c["frequency_hz"], atol=1e-6)
@@ -252,6 +261,15 @@ def attach_cumulative_energy(yields: pd.DataFrame, energy: pd.DataFrame) -> pd.D
 # --------------------------------------------------------------------------------------------
 # powder-regime line (OLS with bands)
 # --------------------------------------------------------------------------------------------
+_T_CACHE: dict = {}
+
+
+def _t_quantile(q: float, df: int) -> float:
+    key = (q, df)
+    if key not in _T_CACHE:
+        _T_CACHE[key] = float(stats.t.ppf(q, df))
+    return _T_CACHE[key]
+
 @dataclass
 class LineFitResult:
     """OLS fit of X[%] = a * E_tot[kJ] + b.
@@ -288,6 +306,18 @@ class LineFitResult:
         return pd.DataFrame({"lower": self.params - t * self.stderr,
                              "upper": self.params + t * self.stderr})
 
+    def bands(self, e_tot_j, alpha: float = 0.05):
+        """numpy core of :meth:`predict`: (mean, ci_lo, ci_hi, pi_lo, pi_hi), each shape (m,)."""
+        e_kj = np.atleast_1d(np.asarray(e_tot_j, dtype=float)) / 1e3
+        b, a = self.params["b_pct"], self.params["a_pct_per_kj"]
+        c = self.cov
+        mean = b + a * e_kj
+        se_mean = np.sqrt(c[0, 0] + 2 * c[0, 1] * e_kj + c[1, 1] * e_kj ** 2)
+        se_pred = np.sqrt(se_mean ** 2 + self.sigma_pct ** 2)
+        t = _t_quantile(1 - alpha / 2, self.df_resid)
+        return (mean, mean - t * se_mean, mean + t * se_mean, mean - t * se_pred,
+                mean + t * se_pred)
+
     def predict(self, e_tot_j, alpha: float = 0.05) -> pd.DataFrame:
         """Line value with its (1-alpha) confidence band (of the line) and prediction band
         (of a new observation).
@@ -300,16 +330,10 @@ class LineFitResult:
         -------
         DataFrame, shape (m, 6): e_tot_j, yield_pct, ci_lo, ci_hi, pi_lo, pi_hi [%]
         """
-        e_kj = np.atleast_1d(np.asarray(e_tot_j, dtype=float)) / 1e3
-        X = np.column_stack([np.ones_like(e_kj), e_kj])
-        beta = np.array([self.params["b_pct"], self.params["a_pct_per_kj"]])
-        mean = X @ beta
-        se_mean = np.sqrt(np.einsum("ij,jk,ik->i", X, self.cov, X))
-        se_pred = np.sqrt(se_mean ** 2 + self.sigma_pct ** 2)
-        t = stats.t.ppf(1 - alpha / 2, self.df_resid)
-        return pd.DataFrame({"e_tot_j": e_kj * 1e3, "yield_pct": mean,
-                             "ci_lo": mean - t * se_mean, "ci_hi": mean + t * se_mean,
-                             "pi_lo": mean - t * se_pred, "pi_hi": mean + t * se_pred})
+        e = np.atleast_1d(np.asarray(e_tot_j, dtype=float))
+        m, cl, ch, pl, ph = self.bands(e, alpha)
+        return pd.DataFrame({"e_tot_j": e, "yield_pct": m, "ci_lo": cl, "ci_hi": ch,
+                             "pi_lo": pl, "pi_hi": ph})
 
     def to_frame(self, alpha: float = 0.05) -> pd.DataFrame:
         ci = self.conf_int(alpha)
@@ -783,41 +807,50 @@ def predict_yield_from_energy(fit: KineticsFit, e_tot_j, alpha: float = 0.05) ->
     regime_uncertain
     """
     e = np.atleast_1d(np.asarray(e_tot_j, dtype=float))
-    out = fit.line.predict(e, alpha)
-    reg = regime_of(e, fit)
+    cols = yield_bands(fit, e, alpha)
+    out = pd.DataFrame({"e_tot_j": e, **cols})
+    return out
+
+
+def yield_bands(fit: KineticsFit, e_tot_j, alpha: float = 0.05) -> dict:
+    """numpy core of :func:`predict_yield_from_energy`: dict of arrays, each shape (n,)
+    (yield_pct, ci_lo, ci_hi, pi_lo, pi_hi, regime, regime_uncertain)."""
+    e = np.atleast_1d(np.asarray(e_tot_j, dtype=float))
+    mean, ci_lo, ci_hi, pi_lo, pi_hi = fit.line.bands(e, alpha)
     e1, e2 = fit.boundaries.powder_wax_j, fit.boundaries.wax_complete_j
-    low_at_e1 = float(fit.line.predict([e1], alpha)["pi_lo"].iloc[0])
+    reg = np.where(e >= e2, "complete", np.where(e >= e1, "wax", "powder")).astype(object)
     wax = reg == "wax"
-    # wax: straight ramp from the powder line at E1 to the plateau at E2 (the plateau is the
-    # continuous least-squares fit's complete level where available, else 100 %)
-    plateau = 100.0
-    for b in [fit.boundaries] + list(fit.alternatives):
-        if "complete_level_pct" in b.params.index:
-            plateau = float(min(b.params["complete_level_pct"], 100.0))
-            break
-    y1 = float(fit.line.predict([e1])["yield_pct"].iloc[0])
-    wax_mean = y1 + (plateau - y1) * (e - e1) / (e2 - e1)
-    for col in ("ci_lo", "pi_lo"):
-        out.loc[wax, col] = low_at_e1
-    for col in ("ci_hi", "pi_hi"):
-        out.loc[wax, col] = 100.0
-    out.loc[wax, "yield_pct"] = wax_mean[wax]
     comp = reg == "complete"
-    lo_c = fit.complete_band_pct[0] if np.isfinite(fit.complete_band_pct[0]) else plateau
-    out.loc[comp, "yield_pct"] = plateau
-    out.loc[comp, ["ci_lo", "pi_lo"]] = lo_c
-    out.loc[comp, ["ci_hi", "pi_hi"]] = 100.0
-    for col in ("yield_pct", "ci_lo", "ci_hi", "pi_lo", "pi_hi"):
-        out[col] = out[col].clip(0.0, 100.0)
-    out["regime"] = reg
-    ci = fit.boundaries.ci
+    if wax.any() or comp.any():
+        y1, _, _, low_at_e1, _ = (float(v[0]) for v in fit.line.bands([e1], alpha))
+        # wax: straight ramp from the powder line at E1 to the plateau at E2 (the plateau is
+        # the continuous least-squares fit's complete level where available, else 100 %)
+        plateau = 100.0
+        for b in [fit.boundaries] + list(fit.alternatives):
+            if "complete_level_pct" in b.params.index:
+                plateau = float(min(b.params["complete_level_pct"], 100.0))
+                break
+        wax_mean = y1 + (plateau - y1) * (e - e1) / (e2 - e1)
+        mean = np.where(wax, wax_mean, mean)
+        ci_lo = np.where(wax, low_at_e1, ci_lo)
+        pi_lo = np.where(wax, low_at_e1, pi_lo)
+        ci_hi = np.where(wax, 100.0, ci_hi)
+        pi_hi = np.where(wax, 100.0, pi_hi)
+        lo_c = fit.complete_band_pct[0] if np.isfinite(fit.complete_band_pct[0]) else plateau
+        mean = np.where(comp, plateau, mean)
+        ci_lo = np.where(comp, lo_c, ci_lo)
+        pi_lo = np.where(comp, lo_c, pi_lo)
+        ci_hi = np.where(comp, 100.0, ci_hi)
+        pi_hi = np.where(comp, 100.0, pi_hi)
     unc = np.zeros(e.shape, bool)
+    ci = fit.boundaries.ci
     for name in ("powder_wax_j", "wax_complete_j"):
         lo, hi = ci.loc[name, "lower"], ci.loc[name, "upper"]
         if np.isfinite(lo) and np.isfinite(hi):
             unc |= (e >= lo) & (e <= hi)
-    out["regime_uncertain"] = unc
-    return out
+    clip = lambda v: np.clip(v, 0.0, 100.0)  # noqa: E731
+    return {"yield_pct": clip(mean), "ci_lo": clip(ci_lo), "ci_hi": clip(ci_hi),
+            "pi_lo": clip(pi_lo), "pi_hi": clip(pi_hi), "regime": reg, "regime_uncertain": unc}
 
 
 def predict_yield(fit: KineticsFit, e_kin_j: float, f_col_hz: float, time_min,

@@ -89,26 +89,28 @@ class Predictor:
         if np.any(np.diff(t) < 0):
             raise PredictInputError("time_min values must be in increasing order")
         try:
-            s = self.surrogate.predict(frequency_hz, ball_diameter_m, jar_volume_m3, kind=self.kind)
+            s = self.surrogate.predict_arrays(frequency_hz, ball_diameter_m, jar_volume_m3,
+                                              kind=self.kind)
         except sur.SurrogateInputError as exc:
             raise PredictInputError(str(exc)) from exc
-        v = float(s["v_mean_m_s"].iloc[0])
-        fcol = float(s["f_col_hz"].iloc[0])
+        v = float(s["v_mean_m_s"][0])
+        fcol = float(s["f_col_hz"][0])
         if v < 0 or fcol < 0:
             raise PredictInputError(f"surrogate returned a negative output (v {v:.3g} m/s, f_col "
                                     f"{fcol:.3g} Hz) - far outside its training domain")
-        e_kin = float(kin.kinetic_energy_j(ball_diameter_m, v, self.density_kg_m3))
-        y = kin.predict_yield(self.kinetics, e_kin, fcol, t, alpha=alpha)
-        head = {"frequency_hz": float(frequency_hz), "ball_diameter_m": float(ball_diameter_m),
-                "jar_volume_m3": float(jar_volume_m3), "bvr": float(s["bvr"].iloc[0]),
+        e_kin = 0.5 * float(kin.ball_mass_kg(ball_diameter_m, self.density_kg_m3)) * v * v
+        e_tot = e_kin * fcol * t * 60.0
+        cols = {"frequency_hz": float(frequency_hz), "ball_diameter_m": float(ball_diameter_m),
+                "jar_volume_m3": float(jar_volume_m3), "bvr": float(s["bvr"][0]),
                 "v_mean_m_s": v, "f_col_hz": fcol, "e_kin_j": e_kin}
         if "v_mean_sd_m_s" in s:
-            head["v_mean_sd_m_s"] = float(s["v_mean_sd_m_s"].iloc[0])
-            head["f_col_sd_hz"] = float(s["f_col_sd_hz"].iloc[0])
-        out = y.assign(**head)
-        out["out_of_domain"] = bool(s["out_of_domain"].iloc[0])
-        cols = list(head) + [c for c in y.columns] + ["out_of_domain"]
-        return out[cols]
+            cols["v_mean_sd_m_s"] = float(s["v_mean_sd_m_s"][0])
+            cols["f_col_sd_hz"] = float(s["f_col_sd_hz"][0])
+        cols = {k: np.full(t.shape, val) for k, val in cols.items()}
+        cols.update(time_min=t, e_tot_j=e_tot)
+        cols.update(kin.yield_bands(self.kinetics, e_tot, alpha))
+        cols["out_of_domain"] = np.full(t.shape, bool(s["out_of_domain"][0]))
+        return pd.DataFrame(cols)
 
 
 def _check_scalar(name, value):
@@ -189,7 +191,8 @@ def compare_yield_sources(kinetics_fit: kin.KineticsFit, twin_energy: pd.DataFra
     Returns
     -------
     DataFrame, one row per (condition, time): condition_id, frequency_hz, ball_diameter_mm,
-    time_min, yield_measured_pct (if given), yield_twin_pct, yield_<kind>_pct,
+    time_min, yield_measured_pct (if given), e_tot_twin_j, yield_twin_pct, e_tot_<kind>_j,
+    yield_<kind>_pct,
     abs_err_<kind>_vs_twin_pct, and abs_err_<source>_vs_measured_pct
     """
     kinds = list(bundle.models) if kinds is None else list(kinds)
@@ -207,12 +210,14 @@ def compare_yield_sources(kinetics_fit: kin.KineticsFit, twin_energy: pd.DataFra
                            "ball_diameter_mm": c["ball_diameter_mm"], "time_min": t})
         if meas is not None:
             df["yield_measured_pct"] = meas
+        df["e_tot_twin_j"] = twin["e_tot_j"].to_numpy()
         df["yield_twin_pct"] = twin["yield_pct"].to_numpy()
         d_m = c["ball_diameter_mm"] * 1e-3
         for k in kinds:
             s = bundle.predict(c["frequency_hz"], d_m, kind=k)
             e_kin = kin.kinetic_energy_j(d_m, float(s["v_mean_m_s"].iloc[0]))
             p = kin.predict_yield(kinetics_fit, e_kin, float(s["f_col_hz"].iloc[0]), t)
+            df[f"e_tot_{k}_j"] = p["e_tot_j"].to_numpy()
             df[f"yield_{k}_pct"] = p["yield_pct"].to_numpy()
             df[f"abs_err_{k}_vs_twin_pct"] = np.abs(df[f"yield_{k}_pct"] - df["yield_twin_pct"])
             df[f"out_of_domain_{k}"] = bool(s["out_of_domain"].iloc[0])

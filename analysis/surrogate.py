@@ -247,8 +247,8 @@ class DomainCheck(BaseEstimator):
             self.hull_ = None
         return self
 
-    def flags(self, X) -> pd.DataFrame:
-        """Per row: in_range, in_hull, out_of_domain (bool columns), shape (n, 3)."""
+    def check(self, X):
+        """numpy core of :meth:`flags`: (in_range, in_hull), boolean arrays of shape (n,)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         tol = self.rel_tol * self.scale_
         in_range = np.all((X >= self.min_ - tol) & (X <= self.max_ + tol), axis=1)
@@ -257,6 +257,11 @@ class DomainCheck(BaseEstimator):
             in_hull = self.hull_.find_simplex(Z, tol=max(self.rel_tol, 1e-9)) >= 0
         else:
             in_hull = in_range
+        return in_range, in_hull
+
+    def flags(self, X) -> pd.DataFrame:
+        """Per row: in_range, in_hull, out_of_domain (bool columns), shape (n, 3)."""
+        in_range, in_hull = self.check(X)
         return pd.DataFrame({"in_range": in_range, "in_hull": in_hull,
                              "out_of_domain": ~(in_range & in_hull)})
 
@@ -519,6 +524,12 @@ class SurrogateBundle:
         DataFrame, shape (n, ...): frequency_hz, ball_diameter_m, bvr, v_mean_m_s, f_col_hz,
         (v_mean_sd_m_s, f_col_sd_hz for 'gp'), in_range, in_hull, out_of_domain
         """
+        out = self.predict_arrays(frequency_hz, ball_diameter_m, jar_volume_m3, kind)
+        return pd.DataFrame(out)
+
+    def predict_arrays(self, frequency_hz, ball_diameter_m, jar_volume_m3: float | None = None,
+                       kind: str = "lr") -> dict:
+        """numpy core of :meth:`predict`: dict of arrays, each shape (n,)."""
         if kind not in self.models:
             raise SurrogateInputError(f"surrogate kind {kind!r} not in bundle ({list(self.models)})")
         f = np.atleast_1d(np.asarray(frequency_hz, dtype=float))
@@ -536,8 +547,9 @@ class SurrogateBundle:
         else:
             mu = m.predict(X)
             out.update(v_mean_m_s=mu[:, 0], f_col_hz=mu[:, 1])
-        df = pd.DataFrame(out)
-        return pd.concat([df, self.domain.flags(X)], axis=1)
+        in_range, in_hull = self.domain.check(X)
+        out.update(in_range=in_range, in_hull=in_hull, out_of_domain=~(in_range & in_hull))
+        return out
 
     def save(self, path: Path) -> Path:
         import joblib
