@@ -61,10 +61,10 @@ def toy_observables(restitution, static_friction, rolling_friction, amplitude_m,
     d_rel = np.asarray(ball_diameter_m, float) / 0.0206
     fr = f / 25.0
     u = 2.0 * np.pi * f * np.asarray(amplitude_m, float)        # jar peak speed
-    h = (1.09 + 0.55 * cr * fr - 0.30 * cr ** 2 - 0.18 * (sf - 0.5) * d_rel ** 2
+    h = (1.09 + 0.55 * cr * fr - 0.30 * cr ** 2 - 0.8 * (sf - 0.5) * (d_rel - 0.92)
          - 0.25 * rf / fr + 0.3 * (sf - 0.5) * (rf - 0.3))
     v = u * h * d_rel ** -0.35
-    fcol = 2.0 * f * (1.0 - 0.1 * (1.0 - cr) * rf * d_rel)
+    fcol = 2.0 * f * (1.0 - 0.1 * (1.0 - cr) * rf * d_rel - 0.04 * (sf - 0.3) * fr)
     return v, fcol
 
 
