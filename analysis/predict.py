@@ -290,6 +290,9 @@ def _run_compare(args) -> Path:
                              kinds=["twin"] + list(bundle.models))
         axes[1].set_title(("SYNTHETIC " if ds.synthetic else "") + "measured vs predicted yield",
                           fontsize=8)
+        fig.suptitle(("SYNTHETIC yields; " if ds.synthetic else "") + "twin outputs: "
+                     + str(twin["source"].iloc[0])[:60] + "; surrogate: " + bundle.source[:40],
+                     fontsize=7)
         fig.tight_layout(); fig.savefig(tmp / "fig14_yield_parity.png", dpi=120); plt.close(fig)
         if args.out.exists():
             shutil.rmtree(args.out)
