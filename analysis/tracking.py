@@ -75,7 +75,17 @@ class TrackerSettings:
     scale_frames : int
         Frames used for the diameter-in-pixels scale.
     search_margin : float
-        Refinement window half size = radius * (1 + search_margin).
+        Refinement window half size = radius * (1 + search_margin) after a detection.
+    track_margin : float
+        The same while tracking (the guess is then within a few px).
+    rim_step : int
+        While tracking, scan every rim_step-th row / column (1 during the scale frames).
+    level_every : int
+        Recompute the rim grey level (Otsu) every this many frames; in between the last one is
+        used (a level error shifts opposite rims symmetrically: the centre does not move).
+    rim_method : {'crossings', 'contour'}
+        Rim points while tracking: sub-pixel crossings (precise, default) or OpenCV contours
+        (fast); the scale frames always use crossings.
     """
 
     reinit_every: int = 200
@@ -85,6 +95,10 @@ class TrackerSettings:
     max_lost_frac: float = 0.5
     scale_frames: int = 60
     search_margin: float = 0.45
+    track_margin: float = 0.3
+    rim_step: int = 2
+    level_every: int = 16
+    rim_method: str = "crossings"
 
 
 # --------------------------------------------------------------------------------------------
@@ -122,50 +136,74 @@ def detect_ball(gray: np.ndarray, r_min: float, r_max: float, roi=None):
     return None
 
 
-def _crossings(win: np.ndarray, level: float):
+def _edge_1d(w: np.ndarray, above: np.ndarray, level: float, axis: int):
+    """First and last crossings along ``axis`` (1: rows, 0: columns) of a bool mask.
+
+    Returns (line_index, first_pos, last_pos) for lines whose bright run does not touch the
+    window border; positions linearly interpolated between the pixels around the crossing.
+    """
+    a = above if axis == 1 else above.T
+    ww = w if axis == 1 else w.T
+    n = a.shape[1]
+    has = a.any(axis=1)
+    idx = np.flatnonzero(has)
+    if len(idx) == 0:
+        e = np.empty(0)
+        return e, e, e
+    aa = a[idx]
+    first = aa.argmax(axis=1)
+    last = n - 1 - aa[:, ::-1].argmax(axis=1)
+    ok = (first > 0) & (last < n - 1)
+    idx, first, last = idx[ok], first[ok], last[ok]
+    rows = ww[idx]
+    r_ = np.arange(len(idx))
+    i0 = rows[r_, first - 1]
+    i1 = rows[r_, first]
+    j0 = rows[r_, last]
+    j1 = rows[r_, last + 1]
+    pf = first - 1 + (level - i0) / np.maximum(i1 - i0, 1e-6)
+    pl = last + (j0 - level) / np.maximum(j0 - j1, 1e-6)
+    return idx.astype(float), pf, pl
+
+
+def _crossings(win: np.ndarray, level: float, step: int = 1):
     """Sub-pixel rim points of the bright blob in ``win`` at grey ``level``.
 
-    Returns xs, ys (window coordinates) and a boolean array telling which points come from
-    column scans (top / bottom arcs).
+    Every ``step``-th row and column is scanned. Returns xs, ys (window coordinates) and a
+    boolean array telling which points come from column scans (top / bottom arcs).
     """
-    above = win >= level
-    pts_x, pts_y, is_col = [], [], []
-    H, W = win.shape
     w = win.astype(np.float32)
-    # rows
-    rows_any = above.any(axis=1)
-    r = np.flatnonzero(rows_any)
-    if len(r):
-        a = above[r]
-        first = np.argmax(a, axis=1)
-        last = W - 1 - np.argmax(a[:, ::-1], axis=1)
-        ok = (first > 0) & (last < W - 1)
-        r1, f1, l1 = r[ok], first[ok], last[ok]
-        i0, i1 = w[r1, f1 - 1], w[r1, f1]
-        xf = f1 - 1 + (level - i0) / np.maximum(i1 - i0, 1e-6)
-        j0, j1 = w[r1, l1], w[r1, l1 + 1]
-        xl = l1 + (j0 - level) / np.maximum(j0 - j1, 1e-6)
-        pts_x += [xf, xl]
-        pts_y += [r1.astype(float), r1.astype(float)]
-        is_col += [np.zeros(len(r1), bool)] * 2
-    cols_any = above.any(axis=0)
-    c = np.flatnonzero(cols_any)
-    if len(c):
-        a = above[:, c]
-        first = np.argmax(a, axis=0)
-        last = H - 1 - np.argmax(a[::-1, :], axis=0)
-        ok = (first > 0) & (last < H - 1)
-        c1, f1, l1 = c[ok], first[ok], last[ok]
-        i0, i1 = w[f1 - 1, c1], w[f1, c1]
-        yf = f1 - 1 + (level - i0) / np.maximum(i1 - i0, 1e-6)
-        j0, j1 = w[l1, c1], w[l1 + 1, c1]
-        yl = l1 + (j0 - level) / np.maximum(j0 - j1, 1e-6)
-        pts_x += [c1.astype(float), c1.astype(float)]
-        pts_y += [yf, yl]
-        is_col += [np.ones(len(c1), bool)] * 2
-    if not pts_x:
-        return np.empty(0), np.empty(0), np.empty(0, bool)
-    return np.concatenate(pts_x), np.concatenate(pts_y), np.concatenate(is_col)
+    above = w >= level
+    if step > 1:
+        ri, rf, rl = _edge_1d(w[::step], above[::step], level, 1)
+        ci, cf, cl = _edge_1d(w[:, ::step], above[:, ::step], level, 0)
+        ri, ci = ri * step, ci * step
+    else:
+        ri, rf, rl = _edge_1d(w, above, level, 1)
+        ci, cf, cl = _edge_1d(w, above, level, 0)
+    xs = np.concatenate([rf, rl, ci, ci])
+    ys = np.concatenate([ri, ri, cf, cl])
+    isc = np.zeros(len(xs), bool)
+    isc[2 * len(ri):] = True
+    return xs, ys, isc
+
+
+def _contour_points(win: np.ndarray, level: float):
+    """Rim points from cv2.findContours of the thresholded window (pixel centres of the blob's
+    boundary pixels, ~0.5 px inside the true rim on every side: the centre is unbiased).
+    Contours touching the window border are dropped point-wise. Fast (all in OpenCV)."""
+    cv2 = _cv2()
+    _, bw = cv2.threshold(win, level, 255, cv2.THRESH_BINARY)
+    cnts, _ = cv2.findContours(bw, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cnts = [c for c in cnts if len(c) >= 12]
+    if not cnts:
+        e = np.empty(0)
+        return e, e, np.empty(0, bool)
+    pts = np.concatenate(cnts).reshape(-1, 2)
+    H, W = win.shape
+    inside = (pts[:, 0] > 0) & (pts[:, 0] < W - 1) & (pts[:, 1] > 0) & (pts[:, 1] < H - 1)
+    pts = pts[inside].astype(np.float64)
+    return pts[:, 0], pts[:, 1], np.zeros(len(pts), bool)
 
 
 def _fit_circle(x: np.ndarray, y: np.ndarray):
@@ -174,21 +212,21 @@ def _fit_circle(x: np.ndarray, y: np.ndarray):
     mx, my = x.mean(), y.mean()
     u, v = x - mx, y - my
     b = u * u + v * v
-    suu, svv, suv = (u * u).sum(), (v * v).sum(), (u * v).sum()
-    n = float(len(u))
-    M = np.array([[suu, suv, 0.0], [suv, svv, 0.0], [0.0, 0.0, n]])
-    rhs = np.array([(u * b).sum(), (v * b).sum(), b.sum()])
-    try:
-        sol = np.linalg.solve(M, rhs)
-    except np.linalg.LinAlgError:
+    suu, svv, suv = u.dot(u), v.dot(v), u.dot(v)
+    det = suu * svv - suv * suv
+    if not det > 0:
         return float("nan"), float("nan"), float("nan")
-    xc, yc = 0.5 * sol[0], 0.5 * sol[1]
-    r2 = sol[2] + xc * xc + yc * yc
+    ub, vb = u.dot(b), v.dot(b)
+    p0 = (svv * ub - suv * vb) / det
+    p1 = (suu * vb - suv * ub) / det
+    xc, yc = 0.5 * p0, 0.5 * p1
+    r2 = b.mean() + xc * xc + yc * yc
     return xc + mx, yc + my, math.sqrt(r2) if r2 > 0 else float("nan")
 
 
 def refine_centre(gray: np.ndarray, x_guess: float, y_guess: float, r_exp: float,
-                  margin: float = 0.45, min_points: int = 20, level: float | None = None):
+                  margin: float = 0.45, min_points: int = 20, level: float | None = None,
+                  step: int = 1, n_iter: int = 3, method: str = "crossings"):
     """Sub-pixel ball centre near a guess, robust to partial occlusion.
 
     Parameters
@@ -202,42 +240,73 @@ def refine_centre(gray: np.ndarray, x_guess: float, y_guess: float, r_exp: float
         Window half size = r_exp * (1 + margin).
     level : float, optional
         Grey level of the rim (default: Otsu threshold of the window).
+    step : int
+        Scan every step-th row / column.
+    n_iter : int
+        Outlier-rejection rounds (3 x MAD of the radial residuals).
+    method : {'crossings', 'contour'}
+        Sub-pixel row/column crossings (precise) or OpenCV contour pixels (fast, integer
+        points; the fit averages their quantisation).
 
     Returns
     -------
-    (x_px, y_px, r_px, n_inliers, rim_points) or None when no valid circle is found;
+    (x_px, y_px, r_px, n_inliers, rim_points, level) or None when no valid circle is found;
     rim_points = (xs, ys, is_col) in image coordinates (inliers only).
     """
     cv2 = _cv2()
     H, W = gray.shape
     h = int(math.ceil(r_exp * (1 + margin)))
-    x0 = max(int(round(x_guess)) - h, 0)
-    x1 = min(int(round(x_guess)) + h + 1, W)
-    y0 = max(int(round(y_guess)) - h, 0)
-    y1 = min(int(round(y_guess)) + h + 1, H)
+    xg, yg = int(round(x_guess)), int(round(y_guess))
+    x0, x1 = max(xg - h, 0), min(xg + h + 1, W)
+    y0, y1 = max(yg - h, 0), min(yg + h + 1, H)
     if x1 - x0 < 8 or y1 - y0 < 8:
         return None
     win = gray[y0:y1, x0:x1]
     if level is None:
         level, _ = cv2.threshold(win, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         level = float(level) + 0.5
-    xs, ys, isc = _crossings(win, level)
+    if method == "contour":
+        xs, ys, isc = _contour_points(win, level)
+    else:
+        xs, ys, isc = _crossings(win, level, step)
     if len(xs) < min_points:
         return None
+    if method == "contour":
+        # integer points: one fit, drop points > 1.5 px off the circle (an occluder's straight
+        # edge, a wall), refit - no medians (the fast path)
+        xc, yc, r = _fit_circle(xs, ys)
+        if not np.isfinite(r):
+            return None
+        keep = np.abs(np.hypot(xs - xc, ys - yc) - r) <= 1.5
+        if keep.sum() < min_points:
+            return None
+        xc, yc, r = _fit_circle(xs[keep], ys[keep])
+        if not np.isfinite(r):
+            return None
+        return (xc + x0, yc + y0, r + 0.5, int(keep.sum()),
+                (xs[keep] + x0, ys[keep] + y0, isc[keep]), level)
     keep = np.ones(len(xs), bool)
-    xc = yc = r = float("nan")
-    for _ in range(3):
+    for _ in range(n_iter):
         if keep.sum() < min_points:
             return None
         xc, yc, r = _fit_circle(xs[keep], ys[keep])
         if not np.isfinite(r):
             return None
         res = np.hypot(xs - xc, ys - yc) - r
-        mad = 1.4826 * np.median(np.abs(res[keep] - np.median(res[keep])))
-        keep = np.abs(res) <= max(3.0 * mad, 0.5)
+        rk = res[keep]
+        med = np.median(rk)
+        mad = 1.4826 * np.median(np.abs(rk - med))
+        new = np.abs(res - med) <= max(3.0 * mad, 0.5)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    if keep.sum() < min_points:
+        return None
     xc, yc, r = _fit_circle(xs[keep], ys[keep])
+    if not np.isfinite(r):
+        return None
     return (xc + x0, yc + y0, r, int(keep.sum()),
-            (xs[keep] + x0, ys[keep] + y0, isc[keep]))
+            (xs[keep] + x0, ys[keep] + y0, isc[keep]), level)
 
 
 def _vertical_radius(rim, xc: float, r: float) -> float:
@@ -349,21 +418,21 @@ class _ScaledMosse:
         self.tr = _new_mosse_raw(self._small(gray), self._to_s(xc), self._to_s(yc), r / self.k)
 
     def _small(self, gray):
+        # plain decimation (pixel k*i + k//2): 10x cheaper than INTER_AREA; MOSSE is coarse
         if self.k == 1:
             return gray
-        cv2 = _cv2()
-        H, W = gray.shape
-        return cv2.resize(gray, (W // self.k, H // self.k), interpolation=cv2.INTER_AREA)
+        o = self.k // 2
+        return np.ascontiguousarray(gray[o::self.k, o::self.k])
 
     def _to_s(self, v):
-        return (v - (self.k - 1) / 2.0) / self.k
+        return (v - self.k // 2) / self.k
 
     def update(self, gray):
         ok, bb = self.tr.update(self._small(gray))
         if not ok:
             return False, None
         k = self.k
-        return True, (bb[0] * k + (k - 1) / 2.0, bb[1] * k + (k - 1) / 2.0, bb[2] * k, bb[3] * k)
+        return True, (bb[0] * k + k // 2, bb[1] * k + k // 2, bb[2] * k, bb[3] * k)
 
 
 def _new_mosse(gray, xc, yc, r):
@@ -425,6 +494,7 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
     n_since_init = 0
     H = W = None
     n = 0
+    level = None
     for gray in frames:
         n += 1
         if H is None:
@@ -454,7 +524,16 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
                 mx, my = bb[0] + bb[2] / 2, bb[1] + bb[3] / 2
                 if math.hypot(mx - px, my - py) <= st.drift_tol * r_exp + math.hypot(*vel):
                     guess = (mx, my)
-            res = refine_centre(gray, guess[0], guess[1], r_exp, st.search_margin, st.min_points)
+            scale_phase = len(vr_list) < st.scale_frames
+            use_level = None if (scale_phase or level is None or n % st.level_every == 0) \
+                else level
+            res = refine_centre(gray, guess[0], guess[1], r_exp, st.track_margin, st.min_points,
+                                level=use_level, step=1 if scale_phase else st.rim_step,
+                                n_iter=3 if scale_phase else 2,
+                                method="crossings" if scale_phase else st.rim_method)
+            if res is None and use_level is not None:  # lighting changed: fresh level
+                res = refine_centre(gray, guess[0], guess[1], r_exp, st.search_margin,
+                                    st.min_points)
             if res is not None and (abs(res[2] / r_exp - 1) > st.radius_tol or
                                     math.hypot(res[0] - px, res[1] - py) > 0.5 * r_exp):
                 res = None
@@ -497,6 +576,7 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
                 prev = None
             continue
         xc, yc, r = res[0], res[1], res[2]
+        level = res[5]
         if prev is not None and qual and qual[-1] != "lost":
             vel = (xc - prev[0], yc - prev[1])
         else:
@@ -563,10 +643,49 @@ def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None
         m_per_px = meta.get("m_per_px")
         ball_diameter_m = meta.get("ball_diameter_m")
     try:
-        return track_frames(iter_gray(cap), float(fps), ball_diameter_m=ball_diameter_m,
-                            m_per_px=m_per_px, settings=settings, source=str(path))
+        return track_frames(_threaded(iter_gray(cap)), float(fps),
+                            ball_diameter_m=ball_diameter_m, m_per_px=m_per_px,
+                            settings=settings, source=str(path))
     finally:
         cap.release()
+
+
+def _threaded(gen, depth: int = 64):
+    """Decode in a background thread (OpenCV releases the GIL) while the caller tracks."""
+    import queue
+    import threading
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    end = object()
+    stop = threading.Event()
+
+    def work():
+        try:
+            for f in gen:
+                while not stop.is_set():
+                    try:
+                        q.put(f, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        finally:
+            try:
+                q.put(end, timeout=1.0)
+            except queue.Full:  # the consumer has gone
+                pass
+
+    th = threading.Thread(target=work, daemon=True)
+    th.start()
+    try:
+        while True:
+            f = q.get()
+            if f is end:
+                return
+            yield f
+    finally:
+        stop.set()
+        th.join(timeout=5)
 
 
 def write_track(track: pd.DataFrame, out) -> Path:
