@@ -621,12 +621,15 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
 def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None = None,
                 m_per_px: float | None = None, settings: TrackerSettings | None = None
                 ) -> TrackResult:
-    """Track the ball in a video file. ``fps`` defaults to a ``<stem>.json`` sidecar's, then to
-    the container's (OpenCV), and must be > 0. Scale as in :func:`track_frames`; a sidecar's
-    m_per_px / ball_diameter_m are used when the arguments are None."""
+    """Track the ball in a video file. ``fps`` defaults to a ``<stem>.json`` sidecar's (or a
+    ``video.json`` beside the video, as in a measurement dataset), then to the container's
+    (OpenCV), and must be > 0. Scale as in :func:`track_frames`; the sidecar's m_per_px /
+    ball_diameter_m fill arguments left None, its ball_diameter_px sets the expected size."""
     import json
     path = Path(path)
     side = path.with_name(path.stem + ".json")
+    if not side.is_file():  # a measurement dataset's videos/video.json (DESIGN.md)
+        side = path.with_name("video.json")
     meta = {}
     if side.is_file():
         try:
@@ -639,11 +642,14 @@ def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None
     if not (fps and fps > 0):
         cap.release()
         raise TrackingError(f"{path}: fps must be > 0, got {fps}")
-    if m_per_px is None and ball_diameter_m is None:
+    if m_per_px is None:
         m_per_px = meta.get("m_per_px")
+    if ball_diameter_m is None:
         ball_diameter_m = meta.get("ball_diameter_m")
+    r_hint = meta.get("ball_diameter_px")
     try:
         return track_frames(_threaded(iter_gray(cap)), float(fps),
+                            ball_radius_px=None if r_hint is None else 0.5 * float(r_hint),
                             ball_diameter_m=ball_diameter_m, m_per_px=m_per_px,
                             settings=settings, source=str(path))
     finally:
