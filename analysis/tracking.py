@@ -624,7 +624,8 @@ def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None
     """Track the ball in a video file. ``fps`` defaults to a ``<stem>.json`` sidecar's (or a
     ``video.json`` beside the video, as in a measurement dataset), then to the container's
     (OpenCV), and must be > 0. Scale as in :func:`track_frames`; the sidecar's m_per_px /
-    ball_diameter_m fill arguments left None, its ball_diameter_px sets the expected size."""
+    ball_diameter_m are used when both arguments are None; its ball_diameter_px sets the
+    expected size."""
     import json
     path = Path(path)
     side = path.with_name(path.stem + ".json")
@@ -642,9 +643,8 @@ def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None
     if not (fps and fps > 0):
         cap.release()
         raise TrackingError(f"{path}: fps must be > 0, got {fps}")
-    if m_per_px is None:
+    if m_per_px is None and ball_diameter_m is None:  # explicit arguments win as a pair
         m_per_px = meta.get("m_per_px")
-    if ball_diameter_m is None:
         ball_diameter_m = meta.get("ball_diameter_m")
     r_hint = meta.get("ball_diameter_px")
     try:
