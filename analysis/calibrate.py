@@ -57,6 +57,8 @@ from scipy.stats import qmc
 
 from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR
 from analysis.emulator import GPEmulator
+from analysis.measurements import DatasetError as MeasurementError
+from analysis.measurements import load_dataset
 
 #: calibrated parameters and their prior bounds (Table 2 bounds; amplitude from the mill's
 #: stroke, not stated in the paper)
@@ -66,35 +68,9 @@ OUTPUTS = ("v_mean_m_s", "f_col_hz")
 CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
 
 
-class MeasurementError(ValueError):
-    """A measurement dataset is malformed (names the file, row and column)."""
-
-
-# ------------------------------------------------------------------------------ measurements
-
-def _check_table(df, path, required):
-    missing = [c for c in required if c not in df.columns]
-    if missing:
-        raise MeasurementError("%s: missing column(s) %s" % (path, ", ".join(missing)))
-    for c in required:
-        if c == "condition_id":
-            continue
-        vals = pd.to_numeric(df[c], errors="coerce")
-        bad = vals.isna()
-        if bad.any():
-            i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise MeasurementError("%s row %d column %s: %r is not a number"
-                                   % (path, i + 2, c, df[c].iloc[i]))
-        if (vals < 0).any():
-            i = int(np.flatnonzero((vals < 0).to_numpy())[0])
-            raise MeasurementError("%s row %d column %s: negative value %g"
-                                   % (path, i + 2, c, vals.iloc[i]))
-        df[c] = vals.astype(float)
-    return df
-
-
 def load_measurements(dataset_dir=PAPER_TABLE3_DIR):
-    """Read a measurement dataset's conditions and summary into one table.
+    """Read a measurement dataset (validated by ``analysis.measurements.load_dataset``) into
+    one table of conditions and summary observables.
 
     Returns
     -------
@@ -104,34 +80,29 @@ def load_measurements(dataset_dir=PAPER_TABLE3_DIR):
 
     Raises
     ------
-    MeasurementError naming the file, row and column of a missing or bad value.
+    MeasurementError (analysis.measurements.DatasetError) naming the file, row and column of
+    a missing or bad value, or a condition without a summary row.
     """
-    d = Path(dataset_dir)
-    try:
-        info = json.loads((d / "dataset.json").read_text())
-        cond = pd.read_csv(d / "conditions.csv")
-        summ = pd.read_csv(d / "summary.csv")
-    except (OSError, ValueError) as exc:
-        raise MeasurementError("cannot read measurement dataset %s: %s" % (d, exc))
-    frame = info.get("velocity_frame", "lab")
-    if frame not in ("lab", "jar"):
-        raise MeasurementError("%s: velocity_frame must be 'lab' or 'jar', got %r"
-                               % (d / "dataset.json", frame))
-    cond = _check_table(cond, d / "conditions.csv",
-                        ["condition_id", "frequency_hz", "ball_diameter_mm"])
-    summ = _check_table(summ, d / "summary.csv", ["condition_id", "v_mean_m_s", "f_col_hz"])
-    if (cond["frequency_hz"] <= 0).any():
-        raise MeasurementError("%s: frequency_hz must be positive" % (d / "conditions.csv"))
-    for c in ("v_mean_sd_m_s", "f_col_sd_hz"):
-        summ[c] = pd.to_numeric(summ[c], errors="coerce") if c in summ else np.nan
+    ds = load_dataset(dataset_dir)
+    cond = ds.conditions.copy()
+    for c in ("frequency_hz", "ball_diameter_mm"):
+        cond[c] = pd.to_numeric(cond[c]).astype(float)
+    summ = ds.summary.copy()
+    for c in summ.columns:          # unknown columns come as strings; keep numbers numeric
+        if c != "condition_id":
+            num = pd.to_numeric(summ[c], errors="coerce")
+            if num.notna().sum() == summ[c].replace("", np.nan).notna().sum():
+                summ[c] = num.astype(float)
     missing = sorted(set(cond["condition_id"]) - set(summ["condition_id"]))
     if missing:
-        raise MeasurementError("%s: no row for condition(s) %s"
-                               % (d / "summary.csv", ", ".join(missing)))
+        raise MeasurementError("%s: no summary.csv row for condition(s) %s"
+                               % (dataset_dir, ", ".join(missing)))
+    summ = summ.drop(columns=[c for c in summ.columns if c in cond.columns
+                              and c != "condition_id"])
     df = cond.merge(summ, on="condition_id", how="left")
     df["ball_diameter_m"] = df["ball_diameter_mm"] / 1000.0
-    df.attrs["velocity_frame"] = frame
-    df.attrs["name"] = info.get("name", d.name)
+    df.attrs["velocity_frame"] = ds.velocity_frame
+    df.attrs["name"] = ds.name
     return df
 
 
