@@ -35,6 +35,11 @@ then 40 min at 25 Hz. With the default energies complete depolymerisation is fir
 20 / 25 / 40 min as the paper reports (a 35 min sample at 25 Hz would already be complete: at the
 synthetic power the 7126 J boundary is passed at 31.4 min, so the schedule skips 35 min).
 
+Table 4's "+-" is read as 95 % confidence half-widths (the paper's Figure 11 band is a 95 %
+interval). With this design the powder fit's expected half-widths are about +-1.04 %/kJ for a
+(matching the paper's +-1.00) and +-2.9 % for b (wider than the paper's +-1.70: the paper's b
+interval is narrower than its a interval and r2 allow for powder samples spread over 0.7-4.6 kJ).
+
 Everything written by the generator is labelled SYNTHETIC (``"synthetic": true`` in
 dataset.json).
 
