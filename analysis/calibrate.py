@@ -470,7 +470,9 @@ def write_results(res, out_dir, measurements_name=""):
     summary = {"dataset": measurements_name, "n_parameter_sets": res.n_parameter_sets,
                "n_runs": res.n_runs, "n_failed_runs": res.n_failed,
                "acceptance_fraction": res.acceptance,
-               "params": res.params.to_dict(), "stderr": res.stderr.to_dict()}
+               "params": res.params.to_dict(), "stderr": res.stderr.to_dict(),
+               "motion_modes": (res.design["motion_mode"].astype(str).value_counts().to_dict()
+                                if "motion_mode" in res.design else {})}
     (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.2))
     plot_parity(res.comparison, axes=axes)
@@ -541,6 +543,9 @@ def main(argv=None):
                         "f_col_measured_hz", "f_col_twin_hz", "f_col_err_pct")
             if c in res.comparison]
     print(res.comparison[cols].to_string(index=False, float_format=lambda x: "%.3g" % x))
+    if "motion_mode" in res.design:
+        print("motion modes of the twin runs: %s"
+              % res.design["motion_mode"].astype(str).value_counts().to_dict())
     print("twin budget: %d parameter sets, %d runs (%d failed); wrote %s%s"
           % (res.n_parameter_sets, res.n_runs, res.n_failed, out,
              "  [FAKE twin]" if args.fake else ""))

@@ -245,23 +245,32 @@ def prepare_configs(configs):
     return clean, ids
 
 
+def slurm_cluster_kwargs(slurm):
+    """SLURMCluster keyword arguments from a sweep config's ``slurm`` mapping.
+
+    Keys: cores (single-threaded workers per job), memory, walltime, queue, account,
+    prologue (shell lines run before the worker starts: cd to the checkout, activate the
+    venv), jobs (taken out: the number of jobs to scale to); anything else is passed through
+    (job_extra_directives, local_directory, log_directory, ...). Returns (kwargs, jobs).
+    """
+    s = dict(slurm)
+    jobs = int(s.pop("jobs", 1))
+    cores = int(s.pop("cores", 1))
+    prologue = s.pop("prologue", None)
+    kw = dict(cores=cores, processes=cores, memory=s.pop("memory", "4GB"),
+              walltime=s.pop("walltime", "01:00:00"))
+    if prologue:
+        kw["job_script_prologue"] = list(prologue) if not isinstance(prologue, str) \
+            else [prologue]
+    kw.update(s)
+    return kw, jobs
+
+
 def _dask_client(workers, scheduler=None, slurm=None):
     from dask.distributed import Client, LocalCluster
     if slurm:
         from dask_jobqueue import SLURMCluster
-        s = dict(slurm)
-        jobs = int(s.pop("jobs", 1))
-        cores = int(s.pop("cores", 1))
-        prologue = s.pop("prologue", None)
-        kw = dict(cores=cores, processes=cores, memory=s.pop("memory", "4GB"),
-                  walltime=s.pop("walltime", "01:00:00"))
-        if prologue:
-            kw["job_script_prologue"] = list(prologue)
-        if "queue" in s:
-            kw["queue"] = s.pop("queue")
-        if "account" in s:
-            kw["account"] = s.pop("account")
-        kw.update(s)   # anything else SLURMCluster accepts (job_extra_directives, ...)
+        kw, jobs = slurm_cluster_kwargs(slurm)
         cluster = SLURMCluster(**kw)
         cluster.scale(jobs=jobs)
         return Client(cluster), cluster

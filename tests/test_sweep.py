@@ -162,3 +162,19 @@ def test_direct_runner_callable(tmp_path):
     res = sweep.run_sweep(_configs(2), runner=run_fake_twin, backend="serial",
                           runs_dir=tmp_path, progress=False)
     assert res.ok and (res.table["v_mean_m_s"] > 0).all()
+
+
+def test_slurm_job_script_from_sweep_config(tmp_path):
+    pytest.importorskip("dask_jobqueue")
+    from dask_jobqueue import SLURMCluster
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text("table: p.csv\nbackend: dask\nslurm: {cores: 4, memory: 8GB, "
+                   "walltime: '02:00:00', jobs: 3, queue: compute, "
+                   "prologue: ['cd /home/me/mill', 'source .venv/bin/activate']}\n")
+    opts = sweep.read_sweep_config(cfg)
+    kw, jobs = sweep.slurm_cluster_kwargs(opts["slurm"])
+    assert jobs == 3
+    with SLURMCluster(**kw, scheduler_options={"dashboard_address": None}) as cluster:
+        script = cluster.job_script()
+    assert "#SBATCH -t 02:00:00" in script and "#SBATCH -p compute" in script
+    assert "cd /home/me/mill" in script and "--nworkers 4" in script
