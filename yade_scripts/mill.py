@@ -261,6 +261,7 @@ class Twin(object):
         if cfg["protocol"] == "free":
             self.phase = "record"
         self.record_start = 0.0 if self.phase == "record" else None
+        self.wall_record_start = self.wall_start
         self.full_since = 0.0 if self.phase != "ramp" else None
         self.windows = []          # (t_end, mean speed) of settle windows
         self.win_speeds = []
@@ -421,6 +422,7 @@ class Twin(object):
                            "window_means_m_s": [round(m, 5) for _, m in self.windows]}
             self.phase = "record"
             self.record_start = t
+            self.wall_record_start = time.time()
             # impacts that began before the record are not counted
             self.impacts = []
 
@@ -678,6 +680,7 @@ def _write_files(twin, tmp, wall_s, steps):
         "sim_time_s": O.time,
         "wall_s": wall_s,
         "steps_per_s": steps / wall_s if wall_s > 0 else None,
+        "wall_record_s": time.time() - twin.wall_record_start,
         "git_commit": git_commit(),
         "seed": cfg["seed"],
         "record_start_s": twin.record_start,

@@ -42,9 +42,9 @@ PARAMETERS = {
     "gravity_m_s2": (9.81, 0.0, 100.0, "m/s2", "numerical", "gravity, along -z (across the motion)"),
     "dt_s": (2e-6, 1e-8, 1e-2, "s", "numerical",
              "time step (default from results/studies/timestep_convergence.csv)"),
-    "ramp_s": (0.5, 0.0, 10.0, "s", "protocol",
+    "ramp_s": (0.3, 0.0, 10.0, "s", "protocol",
                "spin-up: frequency ramps linearly from 0 to f over this time (phase-continuous)"),
-    "settle_min_s": (0.3, 0.0, 30.0, "s", "protocol",
+    "settle_min_s": (0.2, 0.0, 30.0, "s", "protocol",
                      "shortest time at full frequency before steady state may be declared"),
     "settle_max_s": (3.0, 0.0, 60.0, "s", "protocol",
                      "longest time at full frequency waited for a steady state; then the run "

@@ -1,0 +1,46 @@
+"""Benchmark of the YADE twin on this machine: steps/s and wall time per 0.5 s recorded.
+
+1. steps/s at the paper's dt = 5e-7 s: jar oscillating at 25 Hz with the 20.6 mm ball in flight
+   (protocol 'free', 0.1 s simulated = 200 000 steps);
+2. wall seconds per 0.5 s recorded at the default dt (the recording phase of a mill run at 25 Hz)
+   and for the whole run (ramp + settle + record).
+Printed beside the paper's 5 min of CPU per run (EDEM 2021.1, Intel i9-12900). Goals (issue 2):
+>= 30 000 steps/s at dt = 5e-7 s and <= 10 s per 0.5 s recorded on a 2-core machine.
+
+    python -m analysis.bench.dem
+Runs are forced (not cached) and written to a temporary folder.
+"""
+import sys
+import tempfile
+
+from analysis.twin import load_recording, run_twin
+from analysis.config import twin_config
+
+PAPER_S_PER_RUN = 300.0
+
+
+def main(argv=None):
+    with tempfile.TemporaryDirectory(prefix="bench-dem-") as tmp:
+        a = load_recording(run_twin({"protocol": "free", "dt_s": 5e-7, "frequency_hz": 25.0,
+                                     "ball_start": "random", "record_s": 0.1, "seed": 3},
+                                    runs_dir=tmp, force=True))
+        b = load_recording(run_twin({"frequency_hz": 25.0, "record_s": 0.5, "seed": 3},
+                                    runs_dir=tmp, force=True))
+    dt = twin_config.default_config()["dt_s"]
+    sps = a.meta["steps_per_s"]
+    rec_s = b.meta["wall_record_s"]
+    total = b.meta["wall_s"]
+    print("YADE %s, jar %d facets" % (a.meta["yade_version"], a.meta["jar"]["n_facets"]))
+    print("steps/s at dt = 5e-7 s:                %9.0f   (goal >= 30000: %s)"
+          % (sps, "met" if sps >= 30000 else "NOT met"))
+    print("wall s per 0.5 s recorded, dt = %g s: %9.1f   (goal <= 10 s: %s)"
+          % (dt, rec_s, "met" if rec_s <= 10 else "NOT met"))
+    print("wall s per whole run (ramp+settle+rec): %8.1f   (%.2f s simulated, %d steps, %.0f steps/s)"
+          % (total, b.meta["sim_time_s"], b.meta["steps"], b.meta["steps_per_s"]))
+    print("paper: %.0f s per run (EDEM 2021.1, i9-12900) -> this twin is %.1fx faster per run"
+          % (PAPER_S_PER_RUN, PAPER_S_PER_RUN / total))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
