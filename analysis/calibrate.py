@@ -7,9 +7,11 @@ frequency f_col measured at several operating conditions (the paper's 8 conditio
 
 Method
 ------
-1. Observation function: a twin run's summary gives the quantity the measurement holds -
-   ``v_mean_m_s`` (lab frame) or ``v_mean_jar_m_s`` (jar frame) as ``dataset.json`` says,
-   and ``f_col_hz`` (end-cap impacts per second, as counted by the tracker).
+1. Observation function (:func:`observe`): the measurement's own operator
+   (``analysis.observe.observe_recording``: camera rate, camera plane, Savitzky-Golay,
+   collisions from x-velocity sign changes) applied to each twin recording, in the frame
+   ``dataset.json`` names - one operator for both sides; the scene's meta.json summary
+   (``v_mean_m_s`` / ``v_mean_jar_m_s``, ``f_col_hz``) when a run has no trajectory.
 2. Design: a Latin hypercube (scipy.stats.qmc, ``n_initial`` ~ 30 parameter sets) over the
    prior box, each set run at every condition (one seed per set: different start positions,
    common across conditions).
@@ -106,22 +108,44 @@ def load_measurements(dataset_dir=PAPER_TABLE3_DIR):
     return df
 
 
-def observe(table, velocity_frame="lab"):
-    """Observation function: twin run summaries -> the measured quantities.
+def observe(table, velocity_frame="lab", operator="auto"):
+    """Observation function: twin runs -> the quantities the measurement holds.
 
     Parameters
     ----------
-    table : DataFrame - rows of a sweep table (v_mean_m_s, v_mean_jar_m_s, f_col_hz)
+    table : DataFrame - rows of a sweep table (run_dir and/or the run summary columns
+        v_mean_m_s, v_mean_jar_m_s, f_col_hz)
     velocity_frame : {'lab', 'jar'} - frame of the measured speed
+    operator : {'auto', 'camera', 'summary'}
+        'camera': the measurement's own operator, ``analysis.observe.observe_recording``
+        (trajectory sampled at the camera rate, projected on the camera plane, Savitzky-Golay,
+        collisions from x-velocity sign changes) applied to the run folder - one operator for
+        both sides; 'summary': the scene's own figures in meta.json; 'auto': 'camera' where a
+        run folder with trajectory.csv exists, else 'summary'.
 
     Returns
     -------
     DataFrame, shape (n, 2) - v_mean_m_s, f_col_hz (NaN for failed runs)
     """
+    if operator not in ("auto", "camera", "summary"):
+        raise ValueError("operator must be 'auto', 'camera' or 'summary', got %r" % operator)
     vcol = "v_mean_m_s" if velocity_frame == "lab" else "v_mean_jar_m_s"
     out = pd.DataFrame(index=table.index)
     out["v_mean_m_s"] = pd.to_numeric(table.get(vcol), errors="coerce")
     out["f_col_hz"] = pd.to_numeric(table.get("f_col_hz"), errors="coerce")
+    if operator == "summary" or "run_dir" not in table:
+        if operator == "camera":
+            raise ValueError("operator='camera' needs a run_dir column (a sweep table)")
+        return out
+    from analysis.observe import observe_recording
+    for i, rd in table["run_dir"].items():
+        if not isinstance(rd, str) or not (Path(rd) / "trajectory.csv").exists():
+            if operator == "camera" and isinstance(rd, str):
+                raise ValueError("run %s has no trajectory.csv for the camera operator" % rd)
+            continue
+        ob = observe_recording(rd, frame=velocity_frame)
+        out.loc[i, "v_mean_m_s"] = ob.v_mean_m_s
+        out.loc[i, "f_col_hz"] = ob.f_col_hz
     return out
 
 
@@ -286,8 +310,8 @@ def _maximin_pick(candidates, existing, k, lo, hi, rng):
 
 def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_rounds=2,
               n_validation=3, v_rel_sd=0.02, f_col_sd_hz=1.0, base_config=None,
-              exclude_modes=None, n_walkers=32, n_steps=2500, burn=800, random_state=0,
-              progress=None):
+              exclude_modes=None, operator="auto", n_walkers=32, n_steps=2500, burn=800,
+              random_state=0, progress=None):
     """Calibrate contact + apparatus parameters against measured (v_mean, f_col).
 
     Parameters
@@ -305,6 +329,7 @@ def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_
     base_config : dict, optional - config keys fixed in every run (record_s, dt_s, ...)
     exclude_modes : list of str, optional - motion_mode values left out of the emulator's
         training data (default: none; the counts per mode are always reported)
+    operator : {'auto', 'camera', 'summary'} - observation function, see :func:`observe`
     n_walkers, n_steps, burn : emcee settings
     random_state : int
     progress : callable(str), optional - receives one line per stage
@@ -342,7 +367,7 @@ def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_
                              "frequency_hz": c["frequency_hz"],
                              "ball_diameter_m": c["ball_diameter_m"], "seed": sid})
         tab = simulate(cfgs).reset_index(drop=True)
-        obs = observe(tab, frame)
+        obs = observe(tab, frame, operator)
         rows = pd.DataFrame(keys)
         for col in OUTPUTS:
             rows[col] = obs[col].to_numpy()
@@ -509,6 +534,9 @@ def main(argv=None):
     p.add_argument("--v-rel-sd", type=float, default=0.02)
     p.add_argument("--f-col-sd-hz", type=float, default=1.0)
     p.add_argument("--exclude-mode", action="append", default=None)
+    p.add_argument("--operator", default="auto", choices=("auto", "camera", "summary"),
+                   help="observation function (default: the camera operator where "
+                        "trajectories exist)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config key fixed in every run, e.g. record_s=0.5 (repeatable)")
     p.add_argument("--seed", type=int, default=0)
@@ -532,6 +560,7 @@ def main(argv=None):
                         n_rounds=args.rounds, n_validation=args.n_validation,
                         v_rel_sd=args.v_rel_sd, f_col_sd_hz=args.f_col_sd_hz,
                         base_config=base, exclude_modes=args.exclude_mode,
+                        operator=args.operator,
                         random_state=args.seed, progress=lambda s: print(s, flush=True))
     except (ValueError, OSError) as exc:
         print("analysis.calibrate: error: %s" % exc, file=sys.stderr)

@@ -125,3 +125,36 @@ def test_cli_bad_dataset_exit_2(tmp_path, capsys):
     assert cal.main(["--fake", "--dataset", str(tmp_path / "nope"),
                      "--out", str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
+
+
+def test_camera_operator_on_a_recording(tmp_path):
+    """A ball flying end to end at 2 m/s over 20 mm in a jar at rest: v = 2 m/s, f_col =
+    100 /s, through the measurement's own operator (analysis.observe)."""
+    import json
+    fps, v, span = 2134.0, 2.0, 0.02
+    t = np.arange(0, 0.5, 1 / fps)
+    phase = (v * t / span) % 2.0
+    x = span * np.where(phase < 1, phase, 2 - phase) - span / 2
+    vx = np.where(phase < 1, v, -v)
+    zeros = np.zeros_like(t)
+    run = tmp_path / "run"
+    run.mkdir()
+    pd.DataFrame({"t_s": t, "x_m": x, "y_m": zeros, "z_m": zeros, "vx_m_s": vx,
+                  "vy_m_s": zeros, "vz_m_s": zeros, "wx_rad_s": zeros, "wy_rad_s": zeros,
+                  "wz_rad_s": zeros, "jar_x_m": zeros, "jar_vx_m_s": zeros}).to_csv(
+        run / "trajectory.csv", index=False)
+    meta = {"config": {"frequency_hz": 50.0, "ball_diameter_m": 0.0206,
+                       "ball_density_kg_m3": 7800.0, "output_fps": fps},
+            "summary": {"v_mean_m_s": 9.9, "v_mean_jar_m_s": 9.9, "f_col_hz": 9.9},
+            "record_start_s": 0.0, "ball_mass_kg": 0.0357}
+    (run / "meta.json").write_text(json.dumps(meta))
+    pd.DataFrame(columns=["event_id", "t_start_s", "t_end_s", "vn_in_m_s", "vt_in_m_s",
+                          "vn_out_m_s", "fn_peak_n", "e_diss_j", "where", "x_contact_jar_m",
+                          "n_facets"]).to_csv(run / "impacts.csv", index=False)
+    tab = pd.DataFrame({"run_dir": [str(run)], "v_mean_m_s": [9.9], "f_col_hz": [9.9]})
+    cam = cal.observe(tab, "lab", operator="camera")
+    assert abs(cam["v_mean_m_s"].iloc[0] - v) < 0.02 * v
+    assert abs(cam["f_col_hz"].iloc[0] - v / span) <= 1 / 0.5 + 1e-9   # +-1 impact per record
+    assert cal.observe(tab, "lab", operator="summary")["v_mean_m_s"].iloc[0] == 9.9
+    with pytest.raises(ValueError, match="operator"):
+        cal.observe(tab, "lab", operator="video")
