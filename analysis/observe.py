@@ -634,10 +634,17 @@ def direct_figures(recording, frame: str = "lab") -> dict:
     imp = rec.impacts
     ts = pd.to_numeric(imp["t_start_s"]).to_numpy(float)
     end = (imp["where"].astype(str).to_numpy() == "end_cap") & (ts >= t[0]) & (ts <= t[-1])
+    # collisions: re-contacts with the same end belong to one collision (collision_id, written by
+    # the scene); recordings without the column count every end-cap contact
+    if "collision_id" in imp.columns:
+        n_col = int(pd.Series(imp["collision_id"].to_numpy()[end]).nunique())
+    else:
+        n_col = int(end.sum())
     m = _ball_mass(rec.meta)
     return {"v_mean_3d_m_s": v3, "v_mean_2d_m_s": v2,
             "e_kin_j": 0.5 * m * v3 ** 2 if m is not None else float("nan"),
-            "f_col_hz": float(end.sum() / dur), "n_end_cap": int(end.sum()), "duration_s": dur}
+            "f_col_hz": float(n_col / dur), "n_collisions": n_col, "n_end_cap": int(end.sum()),
+            "duration_s": dur}
 
 
 def operator_bias(recording, frame: str = "lab", fps: float | None = None,
