@@ -178,3 +178,18 @@ def test_slurm_job_script_from_sweep_config(tmp_path):
         script = cluster.job_script()
     assert "#SBATCH -t 02:00:00" in script and "#SBATCH -p compute" in script
     assert "cd /home/me/mill" in script and "--nworkers 4" in script
+
+
+def test_sweep_config_file_selects_backend_and_base(tmp_path):
+    cfg = tmp_path / "sweep.json"
+    cfg.write_text(json.dumps({
+        "configs": [{"seed": 1}, {"seed": 2}], "backend": "serial",
+        "runner": RUNNER, "runner_kwargs": {"exec_log": str(tmp_path / "exec")},
+        "runs_dir": str(tmp_path / "runs"), "base": {"restitution": 0.3},
+        "out": str(tmp_path / "out.csv")}))
+    assert sweep.main(["--sweep-config", str(cfg), "--no-progress"]) == 0
+    out = pd.read_csv(tmp_path / "out.csv")
+    assert (out["restitution"] == 0.3).all() and (out["status"] == "done").all()
+    assert sum(_exec_counts(tmp_path / "exec").values()) == 2
+    cfg.write_text(json.dumps({"configs": [{"seed": 1}], "bogus": 1}))
+    assert sweep.main(["--sweep-config", str(cfg)]) == 2
