@@ -11,7 +11,7 @@ export OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study \
-        bench-dem bench-tracking bench-predict bench-sweep clean help
+        bench-dem bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate
 
 help:
 	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
@@ -70,3 +70,11 @@ bench-sweep: setup
 
 clean:
 	rm -rf results/runs/.tmp-* .pytest_cache
+
+surrogate-runs: setup
+	$(VPY) -m analysis.studies.surrogate_runs
+
+surrogate: surrogate-runs
+	$(VPY) -m analysis.surrogate --twin-table results/surrogate/twin_table.csv \
+	  --validation-table results/surrogate/validation_table.csv
+	$(VPY) -m analysis.kinetics --twin-table results/surrogate/validation_table.csv

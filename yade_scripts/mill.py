@@ -58,6 +58,7 @@ import twin_config  # noqa: E402
 from twin_config import ConfigError  # noqa: E402
 from twin_modes import classify_motion  # noqa: E402
 from geometry.stl_io import MeshError, check_jar_mesh, read_stl, scale_for_units  # noqa: E402
+from effects import load_effects  # noqa: E402
 
 from yade import O, utils  # noqa: E402
 from yade.wrapper import (FrictMat, ForceResetter, InsertionSortCollider, Bo1_Sphere_Aabb,  # noqa: E402
@@ -246,8 +247,9 @@ def compensated_restitution(cfg):
 class Twin(object):
     """Builds the scene, drives the protocol from PyRunners, holds the records."""
 
-    def __init__(self, cfg, tri, info):
+    def __init__(self, cfg, tri, info, effects=()):
         self.cfg = cfg
+        self.effects = list(effects)
         self.info = info
         self.r = cfg["ball_diameter_m"] / 2.0
         self.f_target = cfg["frequency_hz"] if cfg["amplitude_m"] > 0 else 0.0
@@ -271,6 +273,8 @@ class Twin(object):
         self.error = None
         self.done = False
         self._build(tri)
+        for e in self.effects:  # effects may add engines or change the motion (effects/)
+            e.setup(self)
 
     # -- scene --
     def _build(self, tri):
@@ -363,10 +367,14 @@ class Twin(object):
         fi = phi + w * (0.5 * self.dt - t) - 0.5 * math.pi
         self.motion.f = Vector3(f, 0, 0)
         self.motion.fi = Vector3(fi, 0, 0)
+        for e in self.effects:
+            e.on_frequency(self, f, phi, t)
 
     # -- per-sample work: trajectory, protocol, escape check --
     def on_sample(self):
         t = O.time
+        for e in self.effects:
+            e.on_sample(self, t)
         s = O.bodies[self.ball_id].state
         jar_x = self.jar_x()
         jar_v = O.bodies[self.jar_ids[0]].state.vel[0]
@@ -492,6 +500,8 @@ class Twin(object):
                     "n_out": n0, "fn_peak": 0.0, "n_facets": 0, "x_contact": 0.0,
                     "ke0": prev["ke"], "w_ext": 0.5 * (prev["g"] + now["g"]) * (t - prev["t"]),
                     "g_last": now["g"], "t_last": t, "region": region}
+                for e in self.effects:
+                    e.on_event_start(self, region, [i for i, _, _ in items], vn)
             ev["n_facets"] = max(ev["n_facets"], len(items))
             if fmag > ev["fn_peak"]:
                 ev["fn_peak"] = fmag
@@ -693,6 +703,7 @@ def _write_files(twin, tmp, wall_s, steps):
         "en_yade": twin.en_yade,
         "restitution_scratch_check": twin.en_check,
         "protocol": cfg["protocol"],
+        "effects": [e.describe() for e in twin.effects],
         "steady": twin.steady,
         "summary": summary,
     }
@@ -703,10 +714,8 @@ def _write_files(twin, tmp, wall_s, steps):
 
 def run(cfg, out_dir):
     tri, info = load_jar(cfg)
-    if cfg["effects"]:
-        raise ConfigError("effects %s: no effect is implemented in the scene yet"
-                          % sorted(cfg["effects"]))
-    twin = Twin(cfg, tri, info)
+    effects = load_effects(cfg["effects"], side="dem")  # ConfigError on unknown names/params
+    twin = Twin(cfg, tri, info, effects)
     globals()["TWIN"] = twin
     import __main__
     __main__.TWIN = twin

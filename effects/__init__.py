@@ -1,0 +1,83 @@
+"""The effect catalog: physics that can be switched on, one module per effect.
+
+``load_effects({"name": {"param": value}}, side="dem")`` validates names and parameters against
+each module's ``DECLARATION`` and returns the effect objects of one side ('dem' for the YADE
+scene, 'kinetics' for the yield model, None for all). Standard library only.
+"""
+import importlib
+import math
+import os
+
+try:
+    from twin_config import ConfigError
+except ImportError:  # imported from the venv without yade_scripts on the path
+    from analysis.config import twin_config
+    ConfigError = twin_config.ConfigError
+
+_HERE = os.path.dirname(os.path.abspath(__file__))
+_NOT_EFFECTS = {"__init__", "base", "template"}
+
+
+def available():
+    """Names of the effect modules in this folder."""
+    return sorted(f[:-3] for f in os.listdir(_HERE)
+                  if f.endswith(".py") and f[:-3] not in _NOT_EFFECTS)
+
+
+def declaration(name):
+    """The DECLARATION dict of effect ``name``."""
+    if name not in available():
+        raise ConfigError("unknown effect %r (catalog: %s)" % (name, ", ".join(available())))
+    return importlib.import_module("effects." + name).DECLARATION
+
+
+def validate(name, params):
+    """Complete ``params`` with defaults and check them against the declared bounds."""
+    decl = declaration(name)
+    if params is None:
+        params = {}
+    if not isinstance(params, dict):
+        raise ConfigError("effect %s: parameters must be an object, got %r" % (name, params))
+    known = decl["parameters"]
+    unknown = sorted(set(params) - set(known))
+    if unknown:
+        raise ConfigError("effect %s: unknown parameter(s) %s (known: %s)"
+                          % (name, ", ".join(unknown), ", ".join(sorted(known))))
+    out = {}
+    for p, spec in known.items():
+        v = params.get(p, spec["default"])
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise ConfigError("effect %s: %s must be a finite number [%s], got %r"
+                              % (name, p, spec["unit"], v))
+        if not spec["lower"] <= v <= spec["upper"]:
+            raise ConfigError("effect %s: %s = %g %s is outside its physical bounds [%g, %g]"
+                              % (name, p, v, spec["unit"], spec["lower"], spec["upper"]))
+        out[p] = float(v)
+    return out
+
+
+def load_effects(spec, side=None):
+    """Effect objects for a config's ``effects`` entry.
+
+    Parameters
+    ----------
+    spec : dict {name: {param: value}}
+    side : 'dem', 'kinetics' or None - keep only effects of this kind
+
+    Raises
+    ------
+    ConfigError - unknown effect or parameter, or a value outside its bounds
+    """
+    out = []
+    for name in sorted(spec or {}):
+        params = validate(name, spec[name])
+        decl = declaration(name)
+        if side is not None and decl["kind"] != side:
+            continue
+        mod = importlib.import_module("effects." + name)
+        cls = getattr(mod, "Effect", None)
+        if cls is None:
+            raise ConfigError("effect %s declares kind %r but has no Effect class"
+                              % (name, decl["kind"]))
+        out.append(cls(decl, params))
+    return out
