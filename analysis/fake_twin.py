@@ -98,7 +98,7 @@ def _burn_cpu(seconds):
 
 
 def run_fake_twin(config, runs_dir=None, force=False, delay_s=0.0, cpu_s=0.0, exec_log=None,
-                  fail_above_restitution=None):
+                  fail_above_restitution=None, crash_above_restitution=None):
     """FAKE stand-in for ``analysis.twin.run_twin``: write a run folder and return its path.
 
     Parameters
@@ -112,6 +112,8 @@ def run_fake_twin(config, runs_dir=None, force=False, delay_s=0.0, cpu_s=0.0, ex
         execution, so tests can count how often each run was really computed
     fail_above_restitution : float, optional - raise RuntimeError (like a failed YADE run) when
         the config's restitution exceeds this
+    crash_above_restitution : float, optional - kill the whole process (os._exit, like a
+        segfault or the out-of-memory killer) when the restitution exceeds this
 
     Returns
     -------
@@ -131,6 +133,8 @@ def run_fake_twin(config, runs_dir=None, force=False, delay_s=0.0, cpu_s=0.0, ex
         time.sleep(float(delay_s))
     if cpu_s:
         _burn_cpu(float(cpu_s))
+    if crash_above_restitution is not None and cfg["restitution"] > float(crash_above_restitution):
+        os._exit(139)
     if fail_above_restitution is not None and cfg["restitution"] > float(fail_above_restitution):
         raise RuntimeError("fake twin: YADE failed for run %s (restitution %g > %g, "
                            "simulated failure)" % (rid, cfg["restitution"],

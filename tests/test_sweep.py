@@ -193,3 +193,15 @@ def test_sweep_config_file_selects_backend_and_base(tmp_path):
     assert sum(_exec_counts(tmp_path / "exec").values()) == 2
     cfg.write_text(json.dumps({"configs": [{"seed": 1}], "bogus": 1}))
     assert sweep.main(["--sweep-config", str(cfg)]) == 2
+
+
+def test_dead_worker_is_reported_and_retried_next_time(tmp_path):
+    runs = tmp_path / "runs"
+    cfgs = _configs(3) + [{"restitution": 0.95, "seed": 9}]
+    res = sweep.run_sweep(cfgs, runner=RUNNER, workers=2, runs_dir=runs, progress=False,
+                          runner_kwargs={"crash_above_restitution": 0.9, "delay_s": 0.2})
+    row = res.table.set_index("run_id").loc[twin_config.run_id(cfgs[-1])]
+    assert row["status"] == "failed" and "worker process died" in row["error"]
+    assert not list(runs.glob("*.failed.json"))      # cause unknown: not recorded as failed
+    again = sweep.run_sweep(cfgs, runner=RUNNER, workers=2, runs_dir=runs, progress=False)
+    assert again.ok and len(list(runs.glob("*/meta.json"))) == 4
