@@ -45,3 +45,263 @@ class Effect(object):
 
     def on_sample(self, twin, t):
         pass
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers for effects (standard library only; yade is imported inside the functions that need it)
+# ----------------------------------------------------------------------------------------------
+#: Thornton et al. (2013) eq. B6 polynomial, as used by YADE 2023.02a's
+#: Ip2_FrictMat_FrictMat_MindlinPhys to turn ``en`` into MindlinPhys.betan (checked against YADE
+#: to 1e-15 at en = 0.05 ... 0.99, tests/test_effects.py)
+_THORNTON_H = (-6.918798, -16.41105, 146.8049, -796.4559, 2928.711, -7206.864, 11494.29,
+               -11342.18, 6276.757, -1489.915)
+#: restitution range in which the B6 fit is used (YADE clips the same way)
+E_MIN, E_MAX = 0.001, 0.999
+
+
+def thornton_betan(e):
+    """Normal damping ratio betan [-] that gives restitution ``e`` in YADE's Hertz-Mindlin law.
+
+    Thornton, Cummins & Cleary (2013) Powder Technol. 233, 30-46, eq. B6 (end of contact when
+    the normal force vanishes): beta = sqrt(1 / (1 - (1 + e)^2 exp(a(e))) - 1), a a 10-term
+    polynomial. e >= 0.999 gives 0 (elastic); e is clipped below at 0.001.
+    """
+    import math
+    e = float(e)
+    if e >= E_MAX:
+        return 0.0
+    e = max(e, E_MIN)
+    a = 0.0
+    for h in reversed(_THORNTON_H):
+        a = e * (h + a)
+    return math.sqrt(1.0 / (1.0 - (1.0 + e) ** 2 * math.exp(a)) - 1.0)
+
+
+def restitution_of_betan(betan, tol=1e-10):
+    """Inverse of :func:`thornton_betan` (bisection; betan decreases with e) [-]."""
+    if betan <= 0.0:
+        return 1.0
+    lo, hi = E_MIN, E_MAX
+    if betan >= thornton_betan(lo):
+        return lo
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        if thornton_betan(mid) > betan:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def yade_restitution(twin, e_phys):
+    """YADE's ``en`` for a physical restitution, with the scene's time-step compensation.
+
+    The scene set en_yade so that one impact at its dt rebounds with cfg['restitution']; the same
+    ratio en_yade / restitution is applied to ``e_phys`` (clipped to [0.001, 1])."""
+    e0 = twin.cfg["restitution"]
+    ratio = twin.en_yade / e0 if e0 > 0 else 1.0
+    return min(1.0, max(E_MIN, e_phys * ratio))
+
+
+def physical_restitution(twin, e_yade):
+    """Inverse of :func:`yade_restitution`."""
+    e0 = twin.cfg["restitution"]
+    ratio = twin.en_yade / e0 if e0 > 0 else 1.0
+    return e_yade / ratio
+
+
+#: restitution an effect gave an interaction during the current step: (id1, id2) -> (iter, e)
+_SET_THIS_STEP = {}
+
+
+def current_restitution(twin, interaction):
+    """The physical restitution the interaction's impact will have with its present damping.
+
+    The value another effect set at this step (effects compose in on_event_start), else the
+    scene's: the restitution MindlinPhys.betan stands for (Thornton B6 inverted, dt-compensated).
+    """
+    from yade import O
+    got = _SET_THIS_STEP.get((interaction.id1, interaction.id2))
+    if got is not None and got[0] == O.iter:
+        return got[1]
+    return physical_restitution(twin, restitution_of_betan(interaction.phys.betan))
+
+
+def set_restitution(twin, interactions, e_phys, vn_in=None):
+    """Give new ball-wall interactions the normal damping of restitution ``e_phys``.
+
+    Only MindlinPhys.betan changes (betas, the tangential damping, keeps the scene's value); the
+    law reads betan at every step, so the change acts from the next step on. The event is
+    detected up to ~20 us (a tenth of the contact) after onset and a heavily damped contact
+    dissipates a good part of its energy early, so given ``vn_in`` (the approach speed at onset)
+    the betan for the rest of the contact is solved from the contact's own equation of motion
+    (:func:`remaining_contact_betan`); without it the Thornton value is set. Returns the betan.
+    """
+    from yade import O
+    if not interactions:
+        return None
+    e_now = current_restitution(twin, interactions[0])
+    beta = thornton_betan(yade_restitution(twin, e_phys))
+    if vn_in is not None:
+        beta = remaining_contact_betan(twin, interactions, vn_in, e_phys, e_now, beta)
+    for i in interactions:
+        i.phys.betan = beta
+        _SET_THIS_STEP[(i.id1, i.id2)] = (O.iter, e_phys)
+    return beta
+
+
+_SQ158 = (15.0 / 8.0) ** 0.5
+
+
+def hertz_exit_speed(x0, v0, betan, h=0.004):
+    """Rebound speed of a damped Hertz contact, nondimensional, from a state inside the contact.
+
+    Units: overlap X in delta_max of the elastic impact at the onset speed, time in
+    delta_max / v_onset, so X'' = -max(0, 5/4 X^(3/2) + 2 betan sqrt(15/8) X^(1/4) X') (YADE's
+    Law2_ScGeom_MindlinPhys_Mindlin: c_n = 2 betan sqrt(m k_n), k_n = 3/2 k_no x^(1/2), total
+    normal force clipped at 0). From (X, X') = (0, 1) the result is the restitution; RK4.
+
+    Parameters
+    ----------
+    x0, v0 : float - overlap [-] and overlap rate [-] (positive = approaching)
+    betan : float - damping ratio [-]
+    h : float - time step [-] (the elastic contact lasts 3.2)
+    """
+    c = 2.0 * betan * _SQ158
+
+    def acc(x, v):
+        if x <= 0.0:
+            return 0.0
+        f = 1.25 * x ** 1.5 + c * x ** 0.25 * v
+        return -f if f > 0.0 else 0.0
+
+    x, v = x0, v0
+    for _ in range(200000):
+        if x <= 0.0 and v <= 0.0:
+            break
+        k1x, k1v = v, acc(x, v)
+        k2x, k2v = v + 0.5 * h * k1v, acc(x + 0.5 * h * k1x, v + 0.5 * h * k1v)
+        k3x, k3v = v + 0.5 * h * k2v, acc(x + 0.5 * h * k2x, v + 0.5 * h * k2v)
+        k4x, k4v = v + h * k3v, acc(x + h * k3x, v + h * k3v)
+        x += h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x)
+        v += h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+    return -v
+
+
+def remaining_contact_betan(twin, interactions, vn_in, e_target, e_now, beta_guess):
+    """betan for the rest of a contact so that the whole impact rebounds with ``e_target``.
+
+    Reads the deepest interaction's overlap, overlap rate, k_no and betan, scales them by the
+    elastic impact at ``vn_in`` (hertz_exit_speed's units) and integrates the rest of the contact.
+    The continuous equation differs from YADE's discrete one by O(dt), so it is calibrated on the
+    known outcome: with the present betan the impact rebounds with ``e_now``; the new betan makes
+    the continuous rebound e_cont(betan) = e_cont(betan_now) * e_target / e_now (secant steps on
+    log betan, a few RK4 integrations of ~800 steps, ~5 ms). Falls back to ``beta_guess`` for
+    grazing contacts (vn_in < 0.05 m/s), contacts already rebounding, or a target out of reach.
+    """
+    import math
+    from yade import O
+    if vn_in < 0.05 or e_now <= 0.0:
+        return beta_guess
+    live = [i for i in interactions if i.isReal and i.phys.kno > 0.0]
+    if not live:
+        return beta_guess
+    i = max(live, key=lambda j: j.geom.penetrationDepth)
+    ball = O.bodies[twin.ball_id].state
+    other = i.id1 if i.id2 == twin.ball_id else i.id2
+    wall = O.bodies[other].state
+    cp = i.geom.contactPoint
+    n = cp - ball.pos
+    n = n / max(n.norm(), 1e-300)
+    v_wall = wall.vel + wall.angVel.cross(cp - wall.pos)
+    rate = (ball.vel - v_wall).dot(n)
+    d_max = (1.25 * twin.mass * vn_in * vn_in / i.phys.kno) ** 0.4
+    x0, v0 = i.geom.penetrationDepth / d_max, rate / vn_in
+    if v0 <= 0.05 or x0 <= 0.0:
+        return beta_guess
+    target = hertz_exit_speed(x0, v0, i.phys.betan) * e_target / e_now
+    if target >= v0:
+        return 0.0
+    b0 = max(beta_guess, 1e-4)
+    b1 = b0 * 1.05
+    f0 = hertz_exit_speed(x0, v0, b0) - target
+    f1 = f0
+    for _ in range(10):
+        f1 = hertz_exit_speed(x0, v0, b1) - target
+        if abs(f1) < 1e-4 * target or f1 == f0:
+            break
+        lb = math.log(b1) - f1 * (math.log(b1) - math.log(b0)) / (f1 - f0)
+        b0, f0, b1 = b1, f1, math.exp(max(min(lb, math.log(b1) + 2.0), math.log(b1) - 2.0))
+    if not math.isfinite(b1) or abs(f1) > 0.01 * target:
+        return beta_guess
+    return b1
+
+
+def insert_engine_after(existing, new):
+    """Put engine ``new`` into O.engines right after the engine ``existing`` (same object)."""
+    from yade import O
+    engines = list(O.engines)
+    for k, e in enumerate(engines):
+        if e is existing or (e.label and e.label == existing.label
+                             and type(e).__name__ == type(existing).__name__):
+            engines.insert(k + 1, new)
+            O.engines = engines
+            return
+    raise RuntimeError("engine %r is not in O.engines" % (existing,))
+
+
+def replace_engine(existing, new):
+    """Replace engine ``existing`` in O.engines by ``new`` (kept at the same position)."""
+    from yade import O
+    engines = list(O.engines)
+    for k, e in enumerate(engines):
+        if e is existing or _same_engine(e, existing):
+            engines[k] = new
+            O.engines = engines
+            return
+    raise RuntimeError("engine %r is not in O.engines" % (existing,))
+
+
+def _same_engine(a, b):
+    if type(a).__name__ != type(b).__name__:
+        return False
+    try:
+        return a.dict() == b.dict()
+    except Exception:  # pragma: no cover - engines without a comparable dict
+        return False
+
+
+def python_runner(obj, method, iter_period, key):
+    """A PyRunner calling ``obj.method()`` every ``iter_period`` steps.
+
+    PyRunner commands run in ``__main__``; the object is published there as ``_EFFECT_<key>``."""
+    import __main__
+    from yade import PyRunner
+    name = "_EFFECT_" + key
+    setattr(__main__, name, obj)
+    return PyRunner(iterPeriod=int(iter_period), command="%s.%s()" % (name, method),
+                    label="effect_" + key)
+
+
+class KineticsEffect(object):
+    """One switched-on kinetics effect: binds the module's ``modify_kinetics`` to its params.
+
+    ``load_effects(spec, side='kinetics')`` returns these; ``effect.yield_pct(e_kin_j, f_col_hz,
+    time_s, slope_pct_per_kj, intercept_pct)`` is the yield [%] with the effect.
+    """
+    modify = None  # staticmethod(the module's modify_kinetics), set by the subclass
+
+    def __init__(self, declaration, params):
+        self.declaration = declaration
+        self.params = dict(params)
+
+    @property
+    def name(self):
+        return self.declaration["name"]
+
+    def describe(self):
+        return {"name": self.name, "params": dict(self.params)}
+
+    def yield_pct(self, e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct):
+        return self.modify(e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct,
+                                 self.params)
