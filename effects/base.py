@@ -271,6 +271,20 @@ def _same_engine(a, b):
         return False
 
 
+def jar_kinematic_engine(twin):
+    """The last kinematic engine in O.engines that moves the jar facets (it sets their velocity:
+    YADE's KinematicEngine resets the velocities of its bodies before applying its motion)."""
+    from yade import O
+    jar = set(twin.jar_ids)
+    found = None
+    for e in O.engines:
+        if "KinematicEngine" in [c.__name__ for c in type(e).__mro__] and set(e.ids) == jar:
+            found = e
+    if found is None:
+        raise RuntimeError("no kinematic engine moves the jar facets")
+    return found
+
+
 def python_runner(obj, method, iter_period, key):
     """A PyRunner calling ``obj.method()`` every ``iter_period`` steps.
 

@@ -1,0 +1,55 @@
+"""Extra rolling resistance of the ball on the cylinder (powder film, polymer hysteresis).
+
+The scene's rolling friction caps the rolling moment at RF * r * |Fn| (MindlinPhys.maxBendPl =
+RF * r; kr sized so the elastic rolling angle at the cap stays below 1e-2 rad up to 100 N). This
+effect raises the cap on cylinder contacts to (RF + drf) * r * |Fn| (rolling on a soft or
+powder-covered surface: the ball ploughs a groove whose front pushes back; the cap is the
+constant-torque rolling model, Ai et al. 2011 model A/C), scaling kr in proportion.
+
+YADE: at the start of every 'cylinder' contact event, the interactions' maxBendPl and kr are set;
+if the scene has rolling friction off (RF = 0, no moments computed), setup switches the law's
+includeMoment on. End caps keep the scene's values. Limit: a suppressed duplicate facet contact
+that later becomes the deepest gets the scene's kr back from the scene's merge logic (mill.py
+merge_contacts keeps the first kr it saw); maxBendPl stays.
+"""
+from effects import base
+
+DECLARATION = {
+    "name": "rolling_resistance",
+    "kind": "dem",
+    "physics": "rolling moment cap on the cylinder raised from RF r |Fn| to (RF + drf) r |Fn| "
+               "(constant-torque rolling resistance)",
+    "parameters": {
+        "extra_rolling_friction": {"default": 0.2, "lower": 0.0, "upper": 2.0, "unit": "-",
+                                   "description": "drf, added to the rolling friction RF on "
+                                                  "cylinder contacts"},
+    },
+    "null": {"extra_rolling_friction": 0.0},
+    "references": [
+        "Ai J, Chen J-F, Rotter JM, Ooi JY (2011) Powder Technol 206, 269 (rolling resistance "
+        "models)",
+        "Iwashita K, Oda M (1998) J Eng Mech 124, 285",
+    ],
+    "changes": "MindlinPhys.maxBendPl and kr of each new ball-cylinder interaction; "
+               "Law2_ScGeom_MindlinPhys_Mindlin.includeMoment if RF = 0",
+}
+
+#: elastic rolling angle at the cap (rad) at this normal force (N): the scene's kr sizing
+ROLL_ANGLE_RAD, ROLL_FORCE_N = 1e-2, 100.0
+
+
+class Effect(base.Effect):
+    def setup(self, twin):
+        rf = twin.cfg["rolling_friction"] + self.params["extra_rolling_friction"]
+        self.max_bend_pl = rf * twin.r
+        self.kr = rf * twin.r * ROLL_FORCE_N / ROLL_ANGLE_RAD
+        if self.params["extra_rolling_friction"] > 0.0 and not twin.law.includeMoment:
+            twin.law.includeMoment = True
+
+    def on_event_start(self, twin, region, interactions, vn_in):
+        if region != "cylinder" or self.params["extra_rolling_friction"] <= 0.0:
+            return
+        for i in interactions:
+            i.phys.maxBendPl = self.max_bend_pl
+            if i.phys.kno > 0.0:  # contacts the scene suppressed (kno = 0) stay without moment
+                i.phys.kr = self.kr
