@@ -81,3 +81,31 @@ def load_effects(spec, side=None):
                               % (name, decl["kind"]))
         out.append(cls(decl, params))
     return out
+
+
+def catalog_rows(kind=None):
+    """One dict per effect (name, kind, physics, parameters, null, changes), sorted by name.
+
+    ``parameters`` is a one-line text "p [unit] = default (lower..upper); ...".
+    """
+    rows = []
+    for name in available():
+        d = declaration(name)
+        if kind is not None and d["kind"] != kind:
+            continue
+        params = "; ".join("%s [%s] = %g (%g..%g)" % (p, s["unit"], s["default"], s["lower"],
+                                                        s["upper"])
+                           for p, s in sorted(d["parameters"].items()))
+        null = ", ".join("%s = %g" % (p, v) for p, v in sorted(d["null"].items()))
+        rows.append({"name": name, "kind": d["kind"], "physics": d["physics"],
+                     "parameters": params, "null": null, "changes": d["changes"]})
+    return rows
+
+
+def catalog_table(kind=None):
+    """The effect catalog as a Markdown table generated from the declarations (a str)."""
+    cols = ("name", "kind", "physics", "parameters", "null")
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in catalog_rows(kind):
+        lines.append("| " + " | ".join(str(r[c]).replace("|", "\\|") for c in cols) + " |")
+    return "\n".join(lines) + "\n"

@@ -319,3 +319,14 @@ class KineticsEffect(object):
     def yield_pct(self, e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct):
         return self.modify(e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct,
                                  self.params)
+
+
+def nonnegative_array(name, x):
+    """``x`` as a float ndarray; ValueError naming ``name`` if any value is NaN, infinite or < 0."""
+    import numpy as np
+    a = np.asarray(x, dtype=float)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("%s must be finite, got %r" % (name, x))
+    if np.any(a < 0):
+        raise ValueError("%s must be >= 0, got %r" % (name, x))
+    return a

@@ -1,0 +1,51 @@
+"""TEMPLATE: copy to effects/<name>.py, rename, fill in. (This file is not loaded as an effect.)
+
+One paragraph on the physics: what happens in the real mill, the formula with its symbols and
+units, what the parameter's null value means, and the YADE objects the hooks change (or, for a
+kinetics effect, how the yield model changes). State the limits (update rates, what is not
+modelled).
+"""
+from effects import base
+
+DECLARATION = {
+    "name": "template",                # = the file name without .py
+    "kind": "dem",                     # 'dem' (YADE scene) or 'kinetics' (yield model)
+    "physics": "one line: the effect and its formula",
+    "parameters": {                    # every parameter: SI units, physical bounds
+        "strength": {"default": 1.0, "lower": 0.0, "upper": 10.0, "unit": "-",
+                     "description": "what it scales"},
+    },
+    "null": {"strength": 0.0},         # parameter values at which the scene is the base scene
+    "references": ["Author A (year) Journal vol, page"],
+    "changes": "which YADE objects / which part of the kinetic model it changes",
+}
+
+
+# --- a DEM effect: implement the hooks you need (yade is imported inside them, so the module
+# --- also imports in the analysis venv where yade is absent)
+class Effect(base.Effect):
+    def setup(self, twin):
+        """After the scene is built: add engines (base.insert_engine_after, base.replace_engine,
+        base.python_runner), keep references on self."""
+        self.strength = self.params["strength"]
+
+    def on_frequency(self, twin, f, phi, t):
+        """The jar's frequency became f [Hz] with phase phi [rad] at time t [s]."""
+
+    def on_event_start(self, twin, region, interactions, vn_in):
+        """A contact with 'end+', 'end-' or 'cylinder' began; interactions are YADE
+        Interaction objects (i.phys is a MindlinPhys); vn_in the normal approach speed [m/s].
+        E.g. base.set_restitution(twin, interactions, e, vn_in)."""
+
+    def on_sample(self, twin, t):
+        """At every output frame (t [s])."""
+
+
+# --- a kinetics effect instead: set "kind": "kinetics", delete the class above and write
+#
+# def modify_kinetics(e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct, params):
+#     """Yield [%] with the effect; arrays broadcast; X = a * E[kJ] + b is the base line."""
+#     ...
+#
+# class Effect(base.KineticsEffect):
+#     modify = staticmethod(modify_kinetics)
