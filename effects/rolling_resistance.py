@@ -7,10 +7,11 @@ powder-covered surface: the ball ploughs a groove whose front pushes back; the c
 constant-torque rolling model, Ai et al. 2011 model A/C), scaling kr in proportion.
 
 YADE: at the start of every 'cylinder' contact event, the interactions' maxBendPl and kr are set;
-if the scene has rolling friction off (RF = 0, no moments computed), setup switches the law's
-includeMoment on. End caps keep the scene's values. Limit: a suppressed duplicate facet contact
-that later becomes the deepest gets the scene's kr back from the scene's merge logic (mill.py
-merge_contacts keeps the first kr it saw); maxBendPl stays.
+a ball rolling along the cylinder crosses onto new facets within one event, so on_sample (every
+output frame, 0.47 ms) also sets them on every ball-cylinder interaction that lacks them: a new
+facet contact has the scene's cap for at most one frame. If the scene has rolling friction off
+(RF = 0, no moments computed), setup switches the law's includeMoment on. End caps keep the
+scene's values.
 """
 from effects import base
 
@@ -50,6 +51,22 @@ class Effect(base.Effect):
         if region != "cylinder" or self.params["extra_rolling_friction"] <= 0.0:
             return
         for i in interactions:
-            i.phys.maxBendPl = self.max_bend_pl
-            if i.phys.kno > 0.0:  # contacts the scene suppressed (kno = 0) stay without moment
-                i.phys.kr = self.kr
+            self._apply(i)
+
+    def on_sample(self, twin, t):
+        from yade import O
+        if self.params["extra_rolling_friction"] <= 0.0:
+            return
+        pos = O.bodies[twin.ball_id].state.pos
+        for i in O.interactions.withBody(twin.ball_id):
+            if not i.isReal or i.phys.maxBendPl == self.max_bend_pl and (
+                    i.phys.kno == 0.0 or i.phys.kr == self.kr):
+                continue
+            n = i.geom.contactPoint - pos
+            if abs(n[0]) < 0.5 * n.norm():  # the scene's 'cylinder' region
+                self._apply(i)
+
+    def _apply(self, i):
+        i.phys.maxBendPl = self.max_bend_pl
+        if i.phys.kno > 0.0:  # contacts the scene suppressed (kno = 0) stay without moment
+            i.phys.kr = self.kr

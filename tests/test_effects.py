@@ -381,3 +381,40 @@ def test_jar_compliance_takes_up_the_rebound(tmp_path):
     # the rigid-jar limit: the scene is unchanged at the null value
     null = twin_run(dict(cfg, effects={"jar_compliance": {"f_n_hz": 1e4}}), tmp_path)
     assert first_end_impact(null)["vn_out_m_s"] == pytest.approx(v_rigid, rel=1e-9)
+
+
+@pytest.mark.yade
+def test_powder_layer_takes_its_energy_from_each_impact(tmp_path):
+    """vn_out^2 = e^2 vn_in^2 - 2 E_p / m at a slow and a fast impact (within 2 % of vn_out)."""
+    pl = mod("powder_layer")
+    params = {"layer_thickness_m": 3e-4, "crush_pressure_pa": 1e6}  # E_p = 2.9 mJ
+    e0 = 0.5
+    for v0 in (1.0, 4.0):
+        cfg = dict(STILL, restitution=e0, ball_init_vel_m_s=[v0, 0.0, 0.0],
+                   record_s=GAP_M / v0 * 1.2 + 0.002, effects={"powder_layer": params})
+        rec = twin_run(cfg, tmp_path)
+        imp = first_end_impact(rec)
+        e_p = pl.energy_per_impact_j(params["layer_thickness_m"], params["crush_pressure_pa"],
+                                     rec.config["ball_diameter_m"] / 2)
+        expect = pl.effective_restitution(e0, imp["vn_in_m_s"], rec.meta["ball_mass_kg"], e_p)
+        assert expect < e0 - 0.005  # the layer matters at both speeds
+        assert imp["vn_out_m_s"] / imp["vn_in_m_s"] == pytest.approx(expect, rel=0.02)
+
+
+@pytest.mark.yade
+def test_rolling_resistance_decelerates_a_rolling_ball(tmp_path):
+    """A ball rolling along the still jar's bottom decelerates at (5/7)(RF + drf) g (3 %)."""
+    rf = twin_config.PARAMETERS["rolling_friction"][0]
+    g = twin_config.PARAMETERS["gravity_m_s2"][0]
+    for drf in (0.0, 0.3):
+        cfg = {"protocol": "free", "amplitude_m": 0.0, "ball_start": "given",
+               "ball_init_pos_m": [-0.009, 0.0, -0.0035], "ball_init_vel_m_s": [0.3, 0.0, 0.0],
+               "record_s": 0.06,
+               "effects": {"rolling_resistance": {"extra_rolling_friction": drf}}}
+        tr = twin_run(cfg, tmp_path).trajectory
+        r = 0.0103
+        rolling = ((tr["vx_m_s"] - r * tr["wy_rad_s"]).abs() < 0.01 * tr["vx_m_s"].abs() + 2e-3)
+        sel = rolling & (tr["vx_m_s"] < 0.15) & (tr["vx_m_s"] > 0.03) & (tr["t_s"] > 0.01)
+        assert sel.sum() > 20
+        a = np.polyfit(tr["t_s"][sel], tr["vx_m_s"][sel], 1)[0]
+        assert a == pytest.approx(-5.0 / 7.0 * (rf + drf) * g, rel=0.03)
