@@ -272,13 +272,16 @@ def _same_engine(a, b):
 
 
 def jar_kinematic_engine(twin):
-    """The last kinematic engine in O.engines that moves the jar facets (it sets their velocity:
-    YADE's KinematicEngine resets the velocities of its bodies before applying its motion)."""
+    """The last kinematic engine (or CombinedKinematicEngine) in O.engines that moves the jar
+    facets: it sets their velocity (YADE's kinematic engines reset the velocities of their bodies
+    before applying their motion), so it is the one to combine with."""
     from yade import O
     jar = set(twin.jar_ids)
     found = None
     for e in O.engines:
-        if "KinematicEngine" in [c.__name__ for c in type(e).__mro__] and set(e.ids) == jar:
+        kinds = [c.__name__ for c in type(e).__mro__]
+        if ("KinematicEngine" in kinds or "CombinedKinematicEngine" in kinds) \
+                and set(e.ids) == jar:
             found = e
     if found is None:
         raise RuntimeError("no kinematic engine moves the jar facets")

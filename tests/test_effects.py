@@ -332,9 +332,11 @@ def test_air_drag_decelerates_the_ball_by_its_tiny_force(tmp_path):
 
 
 @pytest.mark.yade
+@pytest.mark.slow
 def test_arc_motion_moves_the_jar_on_its_arc(tmp_path):
     """A ball resting on the cylinder bottom rides the arc: its height follows the tilted,
-    lowered jar (A^2 c/4 = 0.9 mm at c = 20 1/m) within 2 um; without the arc it stays level."""
+    lowered jar (A^2 c/4 = 0.9 mm at c = 20 1/m) within 2 um, with tilt or translation only;
+    without the arc it stays level."""
     ar = mod("arc_motion")
     f = 5.0
     base_cfg = {"protocol": "free", "frequency_hz": f, "ball_start": "given",
@@ -355,6 +357,18 @@ def test_arc_motion_moves_the_jar_on_its_arc(tmp_path):
         z_pred.append(zj - s * math.sin(th) - d * math.cos(th))
     assert np.ptp(tr["z_m"]) > 0.5e-3
     assert np.max(np.abs(tr["z_m"].to_numpy() - np.array(z_pred))) < 2e-6
+    # translation only (tilt = 0): the bottom just rises and falls by (A^2 c/4)(1 - cos 2 phi),
+    # the jar's x (recorded from facet 0, exact without tilt) stays A sin(phi)
+    rec = twin_run(dict(base_cfg, effects={"arc_motion": {"curvature_1_m": c, "tilt": 0.0}}),
+                   tmp_path)
+    tr = rec.trajectory[sel]
+    ph = 2 * math.pi * f * tr["t_s"].to_numpy()
+    z_pred = -(a * a * c / 4) * (1 - np.cos(2 * ph)) - d
+    assert np.max(np.abs(tr["z_m"].to_numpy() - z_pred)) < 2e-6
+    assert np.max(np.abs(tr["jar_x_m"].to_numpy() - a * np.sin(ph))) < 1e-5
+    from analysis.twin import TwinRunError
+    with pytest.raises(TwinRunError, match="tilt must be 0 or 1"):
+        twin_run(dict(base_cfg, effects={"arc_motion": {"tilt": 0.5}}), tmp_path)
 
 
 @pytest.mark.yade
