@@ -432,3 +432,28 @@ def test_rolling_resistance_decelerates_a_rolling_ball(tmp_path):
         assert sel.sum() > 20
         a = np.polyfit(tr["t_s"][sel], tr["vx_m_s"][sel], 1)[0]
         assert a == pytest.approx(-5.0 / 7.0 * (rf + drf) * g, rel=0.03)
+
+
+@pytest.mark.yade
+def test_restitution_effects_compose(tmp_path):
+    """powder_layer then viscoelastic_restitution (name order): e = e_powder(v) * e(v) / e0."""
+    pl, ve = mod("powder_layer"), mod("viscoelastic_restitution")
+    e0, v0, k = 0.5, 4.0, 0.2
+    params = {"layer_thickness_m": 3e-4, "crush_pressure_pa": 1e6}
+    cfg = dict(STILL, restitution=e0, ball_init_vel_m_s=[v0, 0.0, 0.0],
+               record_s=GAP_M / v0 * 1.2 + 0.002,
+               effects={"powder_layer": params, "viscoelastic_restitution": {"k": k}})
+    rec = twin_run(cfg, tmp_path)
+    imp = first_end_impact(rec)
+    vn = imp["vn_in_m_s"]
+    e_p = pl.energy_per_impact_j(params["layer_thickness_m"], params["crush_pressure_pa"],
+                                 rec.config["ball_diameter_m"] / 2)
+    expect = pl.effective_restitution(e0, vn, rec.meta["ball_mass_kg"], e_p) \
+        * ve.restitution(vn, e0, k) / e0
+    assert imp["vn_out_m_s"] / vn == pytest.approx(expect, rel=0.02)
+
+
+def test_readme_catalog_is_generated_from_the_declarations():
+    from analysis.config import REPO_ROOT
+    text = (REPO_ROOT / "effects" / "README.md").read_text()
+    assert effects.catalog_table() in text
