@@ -52,7 +52,7 @@ class Effect(object):
 # ----------------------------------------------------------------------------------------------
 #: Thornton et al. (2013) eq. B6 polynomial, as used by YADE 2023.02a's
 #: Ip2_FrictMat_FrictMat_MindlinPhys to turn ``en`` into MindlinPhys.betan (checked against YADE
-#: to 1e-15 at en = 0.05 ... 0.99, tests/test_effects.py)
+#: to 1e-12 at en = 0.05 ... 0.99: tests/test_effects.py reads betan from a YADE scene)
 _THORNTON_H = (-6.918798, -16.41105, 146.8049, -796.4559, 2928.711, -7206.864, 11494.29,
                -11342.18, 6276.757, -1489.915)
 #: restitution range in which the B6 fit is used (YADE clips the same way)

@@ -457,3 +457,41 @@ def test_readme_catalog_is_generated_from_the_declarations():
     from analysis.config import REPO_ROOT
     text = (REPO_ROOT / "effects" / "README.md").read_text()
     assert effects.catalog_table() in text
+
+
+BETAN_PROBE = """
+from yade import *
+import json, sys
+out = {}
+for en in (0.05, 0.11, 0.3, 0.5, 0.7, 0.9, 0.99):
+    O.reset()
+    m = O.materials.append(FrictMat(young=3e9, poisson=0.4, density=1200, frictionAngle=0))
+    O.bodies.append(utils.facet([Vector3(0, -1, -1), Vector3(0, 1, -1), Vector3(0, 0, 1)],
+                                material=m, fixed=True))
+    b = O.bodies.append(utils.sphere(Vector3(-0.0099, 0, 0), 0.01, material=m))
+    O.engines = [ForceResetter(), InsertionSortCollider([Bo1_Sphere_Aabb(), Bo1_Facet_Aabb()]),
+                 InteractionLoop([Ig2_Facet_Sphere_ScGeom(hertzian=True)],
+                                 [Ip2_FrictMat_FrictMat_MindlinPhys(en=en)],
+                                 [Law2_ScGeom_MindlinPhys_Mindlin()]),
+                 NewtonIntegrator(gravity=Vector3(0, 0, 0), damping=0)]
+    O.dt = 1e-7
+    O.run(3, True)
+    out[en] = [i.phys.betan for i in O.interactions if i.isReal][0]
+print("BETAN " + json.dumps(out))
+"""
+
+
+@pytest.mark.yade
+def test_thornton_betan_is_what_yade_sets_for_en(tmp_path):
+    """base.thornton_betan(e) equals the betan YADE's Ip2_FrictMat_FrictMat_MindlinPhys sets."""
+    import json
+    import os
+    import subprocess
+    script = tmp_path / "probe.py"
+    script.write_text(BETAN_PROBE)
+    proc = subprocess.run([os.environ.get("YADE", "yade"), "-n", "-x", str(script)],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    line = [x for x in proc.stdout.splitlines() if x.startswith("BETAN ")]
+    assert line, proc.stdout + proc.stderr
+    for en, beta in json.loads(line[0][6:]).items():
+        assert base.thornton_betan(float(en)) == pytest.approx(beta, rel=1e-12)
