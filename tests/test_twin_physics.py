@@ -203,14 +203,17 @@ def test_yade_batch_runs_a_parameter_table(tmp_path):
         pytest.skip("yade-batch not installed")
     out1, out2 = tmp_path / "r1", tmp_path / "r2"
     table = tmp_path / "table.txt"
+    # values are Python literals (yade-batch evaluates them): strings are quoted
     table.write_text(
-        "protocol amplitude_m frequency_hz ball_start record_s seed out\n"
-        "free 0.0135 25.0 random 0.01 1 %s\n"
-        "free 0.0135 30.0 random 0.01 2 %s\n" % (out1, out2))
-    proc = subprocess.run(["yade-batch", "--job-threads=1", "-j", "2", str(table),
-                           str(MILL_SCRIPT)], cwd=str(tmp_path), capture_output=True, text=True,
+        "description protocol amplitude_m frequency_hz ball_start record_s seed out\n"
+        "run25 'free' 0.0135 25.0 'random' 0.01 1 'r1'\n"
+        "run30 'free' 0.0135 30.0 'random' 0.01 2 'r2'\n")
+    proc = subprocess.run(["yade-batch", "--job-threads=1", "-j", "2", "--log",
+                           str(tmp_path / "@.log"), str(table), str(MILL_SCRIPT)],
+                          cwd=str(tmp_path), capture_output=True, text=True,
                           stdin=subprocess.DEVNULL, timeout=900)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "FAILED" not in proc.stdout + proc.stderr, proc.stdout[-2000:]
     m1 = json.loads((out1 / "meta.json").read_text())
     m2 = json.loads((out2 / "meta.json").read_text())
     assert m1["config"]["frequency_hz"] == 25.0 and m2["config"]["frequency_hz"] == 30.0

@@ -93,14 +93,16 @@ def parse_args(argv):
 
 def config_from_batch_table():
     """Config from a yade-batch parameter table (columns are config keys), or None."""
-    if not os.environ.get("PARAM_TABLE"):
+    # yade-batch sets YADE_BATCH=table:line (older YADE: PARAM_TABLE)
+    if not (os.environ.get("YADE_BATCH") or os.environ.get("PARAM_TABLE")):
         return None
     scalar = {k: v[0] for k, v in twin_config.PARAMETERS.items()
               if k not in ("ball_init_pos_m", "ball_init_vel_m_s")}
-    scalar["out"] = ""
+    scalar["out"] = ""          # output folder (relative to yade-batch's working folder)
+    scalar["description"] = ""  # yade-batch's job name (log file name); not a config key
     utils.readParamsFromTable(noTableOk=True, **scalar)
     from yade.params import table
-    cfg = {k: getattr(table, k) for k in scalar if k != "out"}
+    cfg = {k: getattr(table, k) for k in scalar if k not in ("out", "description")}
     return cfg, (table.out or None)
 
 
@@ -747,6 +749,7 @@ def main(argv=None):
             out = a.out
         if not out:
             out = os.path.join(ROOT, "results", "runs", twin_config.run_id(cfg, ROOT))
+        out = os.path.abspath(out)
         meta = run(cfg, out)
     except (ConfigError, MeshError) as exc:
         sys.stderr.write("mill.py: error: %s\n" % exc)
