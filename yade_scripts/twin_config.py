@@ -40,7 +40,7 @@ PARAMETERS = {
                          "ball-wall rolling friction RF (Table 2, bounds 0.1-0.5), used as "
                          "YADE's eta: rolling moment capped at RF * R * |Fn|"),
     "gravity_m_s2": (9.81, 0.0, 100.0, "m/s2", "numerical", "gravity, along -z (across the motion)"),
-    "dt_s": (2e-6, 1e-8, 1e-2, "s", "numerical",
+    "dt_s": (3e-6, 1e-8, 1e-2, "s", "numerical",
              "time step (default from results/studies/timestep_convergence.csv)"),
     "ramp_s": (0.3, 0.0, 10.0, "s", "protocol",
                "spin-up: frequency ramps linearly from 0 to f over this time (phase-continuous)"),
