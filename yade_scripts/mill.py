@@ -398,7 +398,9 @@ class Twin(object):
         speed = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
         cfg = self.cfg
         if self.phase == "ramp":
-            frac = min(1.0, t / cfg["ramp_s"])
+            # the frequency set now holds until the next sample: take it at the interval's
+            # midpoint, so the phase integral of the linear ramp is exact (no lag of pi f dt)
+            frac = min(1.0, (t + 0.5 * self.sample_period) / cfg["ramp_s"])
             self.set_frequency(self.f_target * frac)
             if frac >= 1.0:
                 self.phase = "settle"
