@@ -75,6 +75,7 @@ surrogate-runs: setup
 	$(VPY) -m analysis.studies.surrogate_runs
 
 surrogate: surrogate-runs
-	$(VPY) -m analysis.surrogate --twin-table results/surrogate/twin_table.csv \
-	  --validation-table results/surrogate/validation_table.csv
-	$(VPY) -m analysis.kinetics --twin-table results/surrogate/validation_table.csv
+	$(VPY) -m analysis.surrogate --twin-table results/twin_tables/twin_table.csv \
+	  --validation-table results/twin_tables/validation_table.csv
+	$(VPY) -m analysis.kinetics --twin-table results/twin_tables/all_runs.csv
+	$(VPY) -m analysis.predict --compare --twin-table results/twin_tables/validation_table.csv

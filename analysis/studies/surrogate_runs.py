@@ -3,7 +3,7 @@
 The paper's design: 9 frequencies 20-30 Hz x 3 balls (analysis.surrogate.design_27: 14.3, 17.5,
 20.6 mm), plus the Table 5 validation cases (10 mm ball radius at 25, 27.5 and 30 Hz), which are
 also the 20 mm ball of the yield experiments. One seeded run each with the default twin. Writes
-results/surrogate/twin_table.csv and results/surrogate/validation_table.csv (frequency_hz,
+results/twin_tables/twin_table.csv and results/twin_tables/validation_table.csv (frequency_hz,
 ball_diameter_m, bvr, v_mean_m_s, f_col_hz, e_kin_j, motion_mode, run_id), the tables that
 `python -m analysis.surrogate --twin-table` and `python -m analysis.kinetics --twin-table` read.
 
@@ -14,7 +14,9 @@ import sys
 
 import pandas as pd
 
-from analysis.config import SURROGATE_DIR
+from analysis.config import RESULTS_DIR
+
+TABLES_DIR = RESULTS_DIR / "twin_tables"  # apart from results/surrogate/, which the CLI rewrites
 from analysis.surrogate import bvr, design_27
 
 VALIDATION = [(25.0, 0.020), (27.5, 0.020), (30.0, 0.020)]
@@ -44,9 +46,11 @@ def main(argv=None):
     res = run_sweep(design + valid, workers=a.workers)
     train = table_from_sweep(design, res.table.iloc[:len(design)])
     val = table_from_sweep(valid, res.table.iloc[len(design):])
-    SURROGATE_DIR.mkdir(parents=True, exist_ok=True)
-    train.to_csv(SURROGATE_DIR / "twin_table.csv", index=False, float_format="%.6g")
-    val.to_csv(SURROGATE_DIR / "validation_table.csv", index=False, float_format="%.6g")
+    TABLES_DIR.mkdir(parents=True, exist_ok=True)
+    train.to_csv(TABLES_DIR / "twin_table.csv", index=False, float_format="%.6g")
+    val.to_csv(TABLES_DIR / "validation_table.csv", index=False, float_format="%.6g")
+    # both together: the kinetics' Figure 9 (E_kin over f and d) and its 20 mm yield conditions
+    pd.concat([train, val]).to_csv(TABLES_DIR / "all_runs.csv", index=False, float_format="%.6g")
     print(pd.concat([train, val]).to_string(index=False))
     print(res)
     return 0 if res.ok else 1
