@@ -20,7 +20,9 @@ class Effect(object):
       (called during the ramp and once before setup);
     - ``on_event_start(twin, region, interactions, vn_in)``: a contact event with 'end+', 'end-'
       or 'cylinder' began (YADE interactions, normal approach speed [m/s]);
-    - ``on_sample(twin, t)``: at every output frame.
+    - ``on_sample(twin, t)``: at every output frame;
+    - ``on_interaction_start(twin, region, interaction, vn_in)``: the contact monitor first sees
+      this ball-facet interaction within an event (also facets reached later in the event).
     """
 
     def __init__(self, declaration, params):
@@ -44,6 +46,11 @@ class Effect(object):
         pass
 
     def on_sample(self, twin, t):
+        pass
+
+    def on_interaction_start(self, twin, region, interaction, vn_in):
+        """A ball-facet interaction was first seen in an event of ``region`` (called for the
+        interactions present at the event's start too, after on_event_start)."""
         pass
 
 

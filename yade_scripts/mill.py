@@ -507,6 +507,14 @@ class Twin(object):
                 for e in self.effects:
                     e.on_event_start(self, region, [i for i, _, _ in items], vn)
             ev["n_facets"] = max(ev["n_facets"], len(items))
+            if self.effects:  # every interaction of the event, also facets reached later in it
+                seen = ev.setdefault("seen", set())
+                for i, _, _ in items:
+                    key = (i.id1, i.id2)
+                    if key not in seen:
+                        seen.add(key)
+                        for e in self.effects:
+                            e.on_interaction_start(self, region, i, ev["vn_in"])
             if fmag > ev["fn_peak"]:
                 ev["fn_peak"] = fmag
                 ev["n_out"] = n0
