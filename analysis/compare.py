@@ -46,6 +46,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from analysis.atomic_dir import publish_dir, staging_dir
 from scipy import signal, stats
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
@@ -479,7 +481,7 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
 
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
+    tmp = staging_dir(out_dir)
     try:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
         figs = []
@@ -504,15 +506,9 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
             plt.close(fig)
             figs.append("yields.png")
         (tmp / "comparison.md").write_text(markdown_page(cmp, dataset, figs))
-        if out_dir.exists():
-            if not overwrite:
-                raise FileExistsError(out_dir)
-            old = Path(tempfile.mkdtemp(prefix=".%s.old-" % out_dir.name, dir=out_dir.parent))
-            os.replace(out_dir, old / out_dir.name)
-            os.replace(tmp, out_dir)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, out_dir)
+        if out_dir.exists() and not overwrite:
+            raise FileExistsError(out_dir)
+        publish_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -83,6 +83,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+
+from analysis.atomic_dir import publish_dir, staging_dir
 from scipy import optimize, stats
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
@@ -802,7 +804,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
 
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
+    tmp = staging_dir(out_dir)
     try:
         diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
         diag.structure.to_csv(tmp / "structure.csv", index=False)
@@ -830,13 +832,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
             md += ["## Adding %s" % added.effect, "", added.summary(), "",
                    "![staircase](staircase.png)", ""]
         (tmp / "diagnosis.md").write_text("\n".join(md))
-        if out_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=".%s.old-" % out_dir.name, dir=out_dir.parent))
-            os.replace(out_dir, old / out_dir.name)
-            os.replace(tmp, out_dir)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, out_dir)
+        publish_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

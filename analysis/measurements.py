@@ -53,6 +53,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.atomic_dir import publish_dir, staging_dir
+
 #: default relative sd of the measured mean speed when v_mean_sd_m_s is empty
 DEFAULT_V_REL_SD = 0.015
 #: default sd of the measured collision frequency [1/s] when f_col_sd_hz is empty
@@ -472,7 +474,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
     if path.exists() and not overwrite:
         raise FileExistsError("%s exists (pass overwrite=True to replace it)" % path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % path.name, dir=path.parent))
+    tmp = staging_dir(path)
     try:
         with open(tmp / "dataset.json", "w") as fh:
             json.dump(ds.meta, fh, indent=2)
@@ -491,13 +493,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
                 shutil.copy2(f, tmp / "videos" / ("%s%s" % (cid, Path(f).suffix)))
         if ds.yields is not None:
             ds.yields.to_csv(tmp / "yields.csv", index=False, na_rep="")
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=".%s.old-" % path.name, dir=path.parent))
-            os.replace(path, old / path.name)
-            os.replace(tmp, path)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, path)
+        publish_dir(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
