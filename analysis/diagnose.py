@@ -792,9 +792,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
                     dataset_name: str = "") -> "Path":
     """Write diagnosis.csv, structure.csv, diagnosis.md, ranking.png [, staircase.csv,
     before_after.csv, staircase.png] into ``out_dir`` atomically (temp folder, rename)."""
-    import os
     import shutil
-    import tempfile
     from pathlib import Path
 
     import matplotlib

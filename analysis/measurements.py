@@ -43,10 +43,8 @@ import argparse
 import csv
 import json
 import math
-import os
 import shutil
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 

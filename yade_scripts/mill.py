@@ -663,7 +663,6 @@ def summarize(twin):
 
 
 def write_outputs(twin, out_dir, wall_s, steps):
-    cfg = twin.cfg
     parent = os.path.dirname(os.path.abspath(out_dir)) or "."
     os.makedirs(parent, exist_ok=True)
     tmp = os.path.join(parent, ".tmp-%s-%d" % (os.path.basename(out_dir), os.getpid()))
