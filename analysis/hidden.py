@@ -1,0 +1,145 @@
+"""Hidden-effect measurement datasets: the twin with effects switched on, plus measurement noise.
+
+A dataset made here looks like any measurement dataset (DESIGN.md format: dataset.json,
+conditions.csv, summary.csv with sd columns) and says nothing of how it was made beyond
+"SYNTHETIC"; the truth (effects, strengths, base config, seeds, noise, the twin's noise-free
+means) goes to a separate file, ``results/hidden/<name>.truth.json``, to be revealed after a blind
+compare / diagnose / add.
+
+    python -m analysis.hidden --name hidden_visco --effect viscoelastic_restitution:k=0.05 \
+        [--replicates 2] [--v-rel-sd 0.015] [--f-col-sd-hz 1.0] [--seed 0] [--fake]
+"""
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.config import MEASUREMENTS_DIR, PAPER_TABLE3_DIR, RESULTS_DIR, twin_config
+
+HIDDEN_TRUTH_DIR = RESULTS_DIR / "hidden"
+
+
+def parse_effect(text):
+    """'name:p=v,q=w' -> ('name', {'p': v, 'q': w})."""
+    name, _, rest = text.partition(":")
+    params = {}
+    for item in filter(None, rest.split(",")):
+        if "=" not in item:
+            raise twin_config.ConfigError("effect parameter %r must be p=value" % item)
+        k, v = item.split("=", 1)
+        try:
+            params[k.strip()] = float(v)
+        except ValueError:
+            raise twin_config.ConfigError("effect %s: %s=%r is not a number" % (name, k, v))
+    return name.strip(), params
+
+
+def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_sd=0.015,
+                        f_col_sd_hz=1.0, seed=0, base_config=None, runner=None, workers=2,
+                        runs_dir=None, out_dir=None, truth_dir=None):
+    """Run the twin with ``effects`` at every condition and write a noisy measurement dataset.
+
+    Parameters
+    ----------
+    name : str - dataset name (folder data/measurements/<name> unless ``out_dir``)
+    effects : dict {effect: {param: value}} - validated against effects/ before any run
+    conditions : DataFrame, optional - condition_id, frequency_hz, ball_diameter_mm (default:
+        the paper's Table 3 conditions)
+    replicates : int - twin runs per condition (different start positions); their mean is the
+        noise-free "truth" of the observable
+    v_rel_sd, f_col_sd_hz : float - measurement noise: relative sd of v_mean, sd of f_col [1/s]
+    seed : int - seeds the measurement noise and (offset) the replicate start positions
+    runner : callable, optional - twin runner (default analysis.twin.run_twin)
+
+    Returns
+    -------
+    (dataset_path, truth_path)
+    """
+    from effects import load_effects
+    from analysis.measurements import Dataset, load_dataset, write_dataset
+    from analysis.sweep import run_sweep
+    if replicates < 1 or v_rel_sd < 0 or f_col_sd_hz < 0:
+        raise ValueError("replicates must be >= 1 and noise sds >= 0")
+    load_effects(effects)  # unknown effects / parameters fail here, before any run
+    if conditions is None:
+        conditions = load_dataset(PAPER_TABLE3_DIR).conditions
+    base = dict(base_config or {})
+    configs, owners = [], []
+    for c in conditions.itertuples():
+        for k in range(replicates):
+            cfg = dict(base, frequency_hz=float(c.frequency_hz),
+                       ball_diameter_m=float(c.ball_diameter_mm) * 1e-3,
+                       seed=1000 * seed + k, effects=effects)
+            configs.append(cfg)
+            owners.append(c.condition_id)
+    res = run_sweep(configs, runner=runner, workers=workers, runs_dir=runs_dir)
+    if not res.ok:
+        raise RuntimeError("hidden dataset %s: %d twin run(s) failed:\n%s"
+                           % (name, res.n_failed, res.failed()[["run_id", "error"]].to_string()))
+    t = res.table.reset_index(drop=True).assign(condition_id=owners)
+    means = t.groupby("condition_id", sort=False)[["v_mean_m_s", "f_col_hz"]].mean()
+    rng = np.random.default_rng(seed)
+    ids = list(conditions["condition_id"])
+    v_true = means.loc[ids, "v_mean_m_s"].to_numpy(float)
+    f_true = means.loc[ids, "f_col_hz"].to_numpy(float)
+    v_meas = v_true * (1.0 + v_rel_sd * rng.standard_normal(len(ids)))
+    f_meas = f_true + f_col_sd_hz * rng.standard_normal(len(ids))
+    summary = pd.DataFrame({"condition_id": ids, "v_mean_m_s": v_meas,
+                            "v_mean_sd_m_s": v_rel_sd * v_meas, "f_col_hz": f_meas,
+                            "f_col_sd_hz": np.full(len(ids), f_col_sd_hz)})
+    meta = {"name": name,
+            "description": "SYNTHETIC hidden-effect dataset made from the twin with measurement "
+                           "noise; its truth is kept apart (results/hidden/%s.truth.json)" % name,
+            "source": "analysis.hidden (SYNTHETIC)", "velocity_frame": "lab", "synthetic": True}
+    cond = conditions[["condition_id", "frequency_hz", "ball_diameter_mm"]].copy()
+    out = Path(out_dir or MEASUREMENTS_DIR / name)
+    ds = Dataset(name=name, description=meta["description"], source=meta["source"],
+                 velocity_frame="lab", conditions=cond, summary=summary, meta=meta)
+    ds_path = write_dataset(ds, out, overwrite=True)
+    truth = {"name": name, "effects": effects, "base_config": base, "replicates": replicates,
+             "noise": {"v_rel_sd": v_rel_sd, "f_col_sd_hz": f_col_sd_hz, "seed": seed},
+             "twin_means": {cid: {"v_mean_m_s": float(v), "f_col_hz": float(f)}
+                            for cid, v, f in zip(ids, v_true, f_true)},
+             "run_ids": list(t["run_id"])}
+    tdir = Path(truth_dir or HIDDEN_TRUTH_DIR)
+    tdir.mkdir(parents=True, exist_ok=True)
+    truth_path = tdir / ("%s.truth.json" % name)
+    tmp = truth_path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(truth, indent=1))
+    tmp.replace(truth_path)
+    return ds_path, truth_path
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--name", required=True)
+    p.add_argument("--effect", action="append", default=[],
+                   help="name:param=value,... (repeatable; none = a no-effect control)")
+    p.add_argument("--replicates", type=int, default=2)
+    p.add_argument("--v-rel-sd", type=float, default=0.015)
+    p.add_argument("--f-col-sd-hz", type=float, default=1.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--fake", action="store_true", help="use the FAKE analytic twin (tests)")
+    a = p.parse_args(argv)
+    try:
+        effects = dict(parse_effect(e) for e in a.effect)
+        runner = None
+        if a.fake:
+            from analysis.fake_twin import run_fake_twin
+            runner = run_fake_twin
+        ds, truth = make_hidden_dataset(a.name, effects, replicates=a.replicates,
+                                        v_rel_sd=a.v_rel_sd, f_col_sd_hz=a.f_col_sd_hz,
+                                        seed=a.seed, runner=runner, workers=a.workers)
+    except (twin_config.ConfigError, ValueError, RuntimeError) as exc:
+        print("analysis.hidden: error: %s" % exc, file=sys.stderr)
+        return 2
+    print("wrote %s (truth kept apart in %s)" % (ds, truth))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
