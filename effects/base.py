@@ -8,7 +8,22 @@ kinetic model, the diagnosis and the hidden-effect generator all read that decla
 """
 
 
-class Effect(object):
+class _Declared(object):
+    """An effect's declaration and its validated parameters (shared by both kinds)."""
+
+    def __init__(self, declaration, params):
+        self.declaration = declaration
+        self.params = dict(params)
+
+    @property
+    def name(self):
+        return self.declaration["name"]
+
+    def describe(self):
+        return {"name": self.name, "params": dict(self.params)}
+
+
+class Effect(_Declared):
     """One switched-on DEM effect with validated parameters ``self.params`` (a dict).
 
     Hooks (all optional; ``twin`` is the scene object of yade_scripts/mill.py: ``twin.cfg``,
@@ -25,16 +40,6 @@ class Effect(object):
       this ball-facet interaction within an event (also facets reached later in the event).
     """
 
-    def __init__(self, declaration, params):
-        self.declaration = declaration
-        self.params = dict(params)
-
-    @property
-    def name(self):
-        return self.declaration["name"]
-
-    def describe(self):
-        return {"name": self.name, "params": dict(self.params)}
 
     def setup(self, twin):
         pass
@@ -307,7 +312,7 @@ def python_runner(obj, method, iter_period, key):
                     label="effect_" + key)
 
 
-class KineticsEffect(object):
+class KineticsEffect(_Declared):
     """One switched-on kinetics effect: binds the module's ``modify_kinetics`` to its params.
 
     ``load_effects(spec, side='kinetics')`` returns these; ``effect.yield_pct(e_kin_j, f_col_hz,
@@ -315,16 +320,6 @@ class KineticsEffect(object):
     """
     modify = None  # staticmethod(the module's modify_kinetics), set by the subclass
 
-    def __init__(self, declaration, params):
-        self.declaration = declaration
-        self.params = dict(params)
-
-    @property
-    def name(self):
-        return self.declaration["name"]
-
-    def describe(self):
-        return {"name": self.name, "params": dict(self.params)}
 
     def yield_pct(self, e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct):
         return self.modify(e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct,
