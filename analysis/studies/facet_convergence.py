@@ -1,6 +1,6 @@
 """Facet-count convergence of the twin: v_mean and f_col against the jar mesh's resolution.
 
-Meshes with 16, 24, 32 and 48 segments round (220 to 1724 facets) of the same 25.0 mL cavity;
+Meshes with 16, 24, 32 and 48 segments round (220 to 1148 facets) of the same 25.0 mL cavity;
 20.6 and 17.5 mm balls at 25 Hz, paper contact parameters, replicates differing in the ball's
 start position. Writes results/studies/facet_convergence.csv and prints it.
 
