@@ -478,8 +478,7 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
     from analysis.plotting import compare_plots
 
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = staging_dir(out_dir)
+    tmp = staging_dir(out_dir)  # makes the parent folder too
     try:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
         figs = []

@@ -801,8 +801,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
     from analysis.plotting import compare_plots
 
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = staging_dir(out_dir)
+    tmp = staging_dir(out_dir)  # makes the parent folder too
     try:
         diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
         diag.structure.to_csv(tmp / "structure.csv", index=False)

@@ -471,8 +471,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
     ds = validate(dataset)
     if path.exists() and not overwrite:
         raise FileExistsError("%s exists (pass overwrite=True to replace it)" % path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = staging_dir(path)
+    tmp = staging_dir(path)  # makes the parent folder too
     try:
         with open(tmp / "dataset.json", "w") as fh:
             json.dump(ds.meta, fh, indent=2)
