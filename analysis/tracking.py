@@ -387,6 +387,8 @@ class _BandRim:
             isc.append(np.ones(len(d), bool))
         self.r, self.width, self.step, self.n = float(r), int(width), step, n
         self.off = np.ascontiguousarray(np.concatenate(offs), dtype=np.intp)
+        self.off_min = int(self.off.min())
+        self.off0 = self.off - self.off_min
         self.P = len(self.off)
         self.origin = np.column_stack([np.concatenate(ox), np.concatenate(oy)]).astype(float)
         self.unit = np.column_stack([np.concatenate(ux), np.concatenate(uy)]).astype(float)
@@ -403,20 +405,19 @@ class _BandRim:
         return W == self.width and R <= xi < W - R and R <= yi < H - R
 
     def _points(self, gray, xi: int, yi: int, level):
-        flat = gray.reshape(-1)
-        p = flat.take(self.off + (yi * self.width + xi))  # (P, n) profiles, outside -> inside
+        # (P, n) profiles, outside -> inside (offsets shifted to >= 0: a view, no index sum)
+        p = gray.reshape(-1)[yi * self.width + xi + self.off_min:].take(self.off0)
         if level is None:
             level = _otsu_level(p)
         above = p >= level
         first = above.argmax(axis=1)  # outermost sample at or above the level
-        ok = above[:, -1] & ~above[:, 0]  # bright inside, dark outside
-        k = ok.nonzero()[0]
+        k = (above[:, -1] > above[:, 0]).nonzero()[0]  # bright inside, dark outside
         i = first[k]
         b = self.rowbase[k] + i
         pf = p.reshape(-1)
-        v_in = pf[b].astype(np.float64)
-        v_out = pf[b - 1]
-        dist = self.e[k] - i + (v_in - level) / (v_in - v_out)
+        v_in = pf[b]
+        # v_in >= level > v_out: the uint8 difference is positive
+        dist = (self.e[k] - i) + (v_in - level) / (v_in - pf[b - 1])
         pts = self.origin[k] + self.unit[k] * dist[:, None]  # relative to (xi, yi)
         return pts, k, level
 
