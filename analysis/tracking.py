@@ -993,12 +993,19 @@ def main(argv=None) -> int:
     p.add_argument("--ball-diameter-mm", type=float, default=None,
                    help="real ball diameter; the scale comes from its size in pixels")
     p.add_argument("--m-per-px", type=float, default=None, help="scale, overrides the ball size")
+    p.add_argument("--rim-method", choices=RIM_METHODS, default=TrackerSettings.rim_method,
+                   help="sub-pixel rim points: 'band' (default, fast), 'crossings' (scan of the "
+                        "whole window, the earlier default), 'contour' (OpenCV contours)")
+    p.add_argument("--mosse-every", type=int, default=TrackerSettings.mosse_every,
+                   help="update MOSSE on every this-many-th frame (default %(default)s)")
     p.add_argument("--out", required=True, help="track CSV to write")
     a = p.parse_args(argv)
     try:
         res = track_video(a.video, a.fps,
                           ball_diameter_m=None if a.ball_diameter_mm is None
-                          else a.ball_diameter_mm * 1e-3, m_per_px=a.m_per_px)
+                          else a.ball_diameter_mm * 1e-3, m_per_px=a.m_per_px,
+                          settings=TrackerSettings(rim_method=a.rim_method,
+                                                   mosse_every=a.mosse_every))
         write_track(res.track, a.out)
     except (TrackingError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

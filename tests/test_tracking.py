@@ -195,3 +195,18 @@ def test_decode_ahead_gives_every_frame(tmp_path):
     gen.close()
     cap.release()
     assert all(np.array_equal(g, r) for g, r in zip(first, ref))
+
+
+def test_cli_rim_method_and_bad_mosse_every(video30, tmp_path, capsys):
+    path, truth, _ = video30
+    out = tmp_path / "track.csv"
+    assert main([str(path), "--fps", "2134", "--m-per-px", "4e-4", "--rim-method", "crossings",
+                 "--mosse-every", "1", "--out", str(out)]) == 0
+    df = pd.read_csv(out)
+    err = np.hypot(df.x_px - truth.x_px, df.y_px - truth.y_px)
+    assert np.sqrt(np.mean(err ** 2)) <= 0.5
+    bad = tmp_path / "bad.csv"
+    assert main([str(path), "--fps", "2134", "--m-per-px", "4e-4", "--mosse-every", "0",
+                 "--out", str(bad)]) == 2
+    assert "mosse_every" in capsys.readouterr().err
+    assert not bad.exists()
