@@ -423,7 +423,7 @@ class _BandRim:
 
     @staticmethod
     def _fit(pts):
-        """Kasa fit in local coordinates: (a, b, r) or None."""
+        """Kasa fit in local coordinates: (a, b, r, m) or None; m = [x, y, 1, x^2 + y^2]."""
         m = np.empty((len(pts), 4))
         m[:, :2] = pts
         m[:, 2] = 1.0
@@ -447,13 +447,13 @@ class _BandRim:
         r2 = p2 + a * a + b * b
         if not r2 > 0:
             return None
-        return a, b, math.sqrt(r2)
+        return a, b, math.sqrt(r2), m
 
     def refine(self, gray, x_guess: float, y_guess: float, level=None, min_points: int = 20,
-               n_iter: int = 2):
+               n_iter: int = 2, rim: bool = True):
         """Like :func:`refine_centre`: (x_px, y_px, r_px, n_inliers, rim_points, level) or None;
         also None when the profiles would leave the frame (the caller falls back to the window
-        scan)."""
+        scan). rim_points is None unless ``rim``."""
         H, W = gray.shape
         xi, yi = int(round(x_guess)), int(round(y_guess))
         R = self.reach
@@ -468,13 +468,14 @@ class _BandRim:
             fit = self._fit(pts)
             if fit is None:
                 return None
-            a, b, r = fit
+            a, b, r, m = fit
+            # every point within 0.5 px of the circle, (r - 0.5)^2 <= d^2 <= (r + 0.5)^2, is
+            # |d^2 - r^2 - 0.25| <= r, d^2 - r^2 = [x, y, 1, x^2 + y^2] . [-2a, -2b, a^2+b^2-r^2, 1]
+            e = m.dot(np.array((-2.0 * a, -2.0 * b, a * a + b * b - r * r, 1.0)))
             keep = None
-            for _ in range(n_iter):
+            for _ in range(n_iter if e.max() > r + 0.25 or e.min() < 0.25 - r else 0):
                 q = pts - (a, b)
                 res = np.sqrt((q * q).sum(axis=1)) - r
-                if keep is None and np.abs(res).max() <= 0.5:
-                    break  # no point would be dropped: done
                 rk = res if keep is None else res[keep]  # median and MAD of the inliers
                 h = len(rk) // 2
                 med = np.partition(rk, h)[h]
@@ -489,7 +490,7 @@ class _BandRim:
                 fit = self._fit(pts[keep])
                 if fit is None:
                     return None
-                a, b, r = fit
+                a, b, r, _ = fit
             # the profiles are centred on the guess: if it was off by more than a third of the
             # slack, read them again around the fitted centre
             if attempt == 0 and max(abs(a), abs(b)) > self.slack / 3:
@@ -501,7 +502,7 @@ class _BandRim:
         if keep is not None:
             pts, k = pts[keep], k[keep]
         return (xi + a, yi + b, r, len(k),
-                (pts[:, 0] + xi, pts[:, 1] + yi, self.isc[k]), level)
+                (pts[:, 0] + xi, pts[:, 1] + yi, self.isc[k]) if rim else None, level)
 
 
 def _vertical_radius(rim, xc: float, r: float) -> float:
@@ -753,7 +754,7 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
                                            window_level(gray, gx, gy, r_exp, st.track_margin),
                                            st.min_points, n_iter=3)
                 elif band is not None:
-                    res = band.refine(gray, gx, gy, lv, st.min_points, n_iter=2)
+                    res = band.refine(gray, gx, gy, lv, st.min_points, n_iter=2, rim=False)
                     if res is None and band.reach_ok(gray, gx, gy):
                         lv = None  # profiles inside the frame but no circle: fresh level
                 if res is None:
