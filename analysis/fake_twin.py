@@ -68,6 +68,33 @@ def toy_observables(restitution, static_friction, rolling_friction, amplitude_m,
     return v, fcol
 
 
+def toy_effect_factor(effects, frequency_hz, ball_diameter_m, v_m_s):
+    """Made-up multiplicative change of the toy speed by DEM catalog effects (tests only).
+
+    Each effect gets a distinct, smooth pattern over frequency and ball size, loosely shaped
+    like its physics: jar compliance the base-excitation gain 1 / (1 - (f/f_n)^2), a powder
+    layer an energy loss growing as h^2 / d^2, rolling resistance a loss falling with f,
+    viscoelastic restitution a loss growing with speed, arc motion a gain growing with f^2,
+    air drag ~nothing. Kinetics effects do not act here."""
+    fac = 1.0
+    fr = frequency_hz / 25.0
+    d_rel = ball_diameter_m / 0.0206
+    for name, p in (effects or {}).items():
+        if name == "viscoelastic_restitution":
+            fac *= 1.0 - 0.25 * p.get("k", 0.1) * (v_m_s / 2.0) ** 0.2
+        elif name == "arc_motion":
+            fac *= 1.0 + 0.004 * p.get("curvature_1_m", 5.0) * fr ** 2
+        elif name == "jar_compliance":
+            fac *= 1.0 / (1.0 - (frequency_hz / p.get("f_n_hz", 200.0)) ** 2)
+        elif name == "powder_layer":
+            fac *= 1.0 - 0.08 * (p.get("layer_thickness_m", 1e-4) / 5e-4) ** 2 / d_rel ** 2
+        elif name == "rolling_resistance":
+            fac *= 1.0 - 0.08 * p.get("extra_rolling_friction", 0.2) / fr
+        elif name == "air_drag":
+            fac *= 1.0 - 1e-4 * p.get("drag_scale", 1.0)
+    return fac
+
+
 def _noise_rng(cfg):
     key = json.dumps({k: cfg[k] for k in ("restitution", "static_friction", "rolling_friction",
                                           "amplitude_m", "frequency_hz", "ball_diameter_m",
@@ -81,6 +108,8 @@ def fake_summary(config):
     v, fcol = toy_observables(cfg["restitution"], cfg["static_friction"],
                               cfg["rolling_friction"], cfg["amplitude_m"],
                               cfg["frequency_hz"], cfg["ball_diameter_m"])
+    v = float(v) * toy_effect_factor(cfg.get("effects"), cfg["frequency_hz"],
+                                     cfg["ball_diameter_m"], float(v))
     rng = _noise_rng(cfg)
     v = float(v) * (1.0 + FAKE_V_REL_SD * rng.standard_normal())
     fcol = float(fcol) + FAKE_FCOL_SD_HZ * rng.standard_normal()

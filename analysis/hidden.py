@@ -11,6 +11,7 @@ compare / diagnose / add.
 """
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -37,9 +38,15 @@ def parse_effect(text):
     return name.strip(), params
 
 
+YIELD_TIMES_MIN = (2.5, 5.0, 7.5, 10.0)
+
+
 def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_sd=0.015,
                         f_col_sd_hz=1.0, seed=0, base_config=None, runner=None, workers=2,
-                        runs_dir=None, out_dir=None, truth_dir=None):
+                        runs_dir=None, out_dir=None, truth_dir=None,
+                        yield_times_min=YIELD_TIMES_MIN, yield_sd_pct=1.0,
+                        slope_pct_per_kj=None, intercept_pct=None, progress=True,
+                        twin_seed=None):
     """Run the twin with ``effects`` at every condition and write a noisy measurement dataset.
 
     Parameters
@@ -51,19 +58,42 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     replicates : int - twin runs per condition (different start positions); their mean is the
         noise-free "truth" of the observable
     v_rel_sd, f_col_sd_hz : float - measurement noise: relative sd of v_mean, sd of f_col [1/s]
-    seed : int - seeds the measurement noise and (offset) the replicate start positions
+    seed : int - seeds the measurement noise and (unless ``twin_seed``) the replicate start
+        positions (seeds 1000 seed + k)
+    twin_seed : int, optional - seeds the replicate start positions instead (1000 twin_seed + k):
+        several noise draws on the same twin runs
     runner : callable, optional - twin runner (default analysis.twin.run_twin)
+    yield_times_min : milling times [min] of the yield measurements at every condition (the
+        default 2.5-10 min keeps the paper's conditions in the powder regime); () for none
+    yield_sd_pct : sd of the yield noise [percentage points]
+    slope_pct_per_kj, intercept_pct : the powder line X = a E_tot + b (default: the paper's
+        Table 4); a kinetics effect in ``effects`` replaces it by its own law
+
+    The twin runs only the DEM effects (kinetics effects act on the yields). The reported sd of
+    v_mean and f_col is the measurement noise combined with the twin's own replicate scatter of
+    the mean of ``replicates`` runs (pooled over the conditions): the measured value of a chaotic
+    system differs from its expectation by both.
 
     Returns
     -------
     (dataset_path, truth_path)
     """
     from effects import load_effects
+    from analysis import kinetics
     from analysis.measurements import Dataset, load_dataset, write_dataset
     from analysis.sweep import run_sweep
-    if replicates < 1 or v_rel_sd < 0 or f_col_sd_hz < 0:
+    if replicates < 1 or v_rel_sd < 0 or f_col_sd_hz < 0 or yield_sd_pct < 0:
         raise ValueError("replicates must be >= 1 and noise sds >= 0")
+    if any(not np.isfinite(t) or t <= 0 for t in yield_times_min):
+        raise ValueError("yield times must be finite and > 0 min, got %r" % (yield_times_min,))
     load_effects(effects)  # unknown effects / parameters fail here, before any run
+    kin = load_effects(effects, side="kinetics")
+    if len(kin) > 1:
+        raise ValueError("kinetics effects do not compose: %s" % [k.name for k in kin])
+    dem_effects = {k: v for k, v in effects.items() if k in
+                   {e.name for e in load_effects(effects, side="dem")}}
+    slope = kinetics.PAPER_SLOPE_PCT_PER_KJ if slope_pct_per_kj is None else slope_pct_per_kj
+    intercept = kinetics.PAPER_INTERCEPT_PCT if intercept_pct is None else intercept_pct
     if conditions is None:
         conditions = load_dataset(PAPER_TABLE3_DIR).conditions
     base = dict(base_config or {})
@@ -72,10 +102,13 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         for k in range(replicates):
             cfg = dict(base, frequency_hz=float(c.frequency_hz),
                        ball_diameter_m=float(c.ball_diameter_mm) * 1e-3,
-                       seed=1000 * seed + k, effects=effects)
+                       seed=1000 * (seed if twin_seed is None else twin_seed) + k)
+            if dem_effects:
+                cfg["effects"] = dem_effects
             configs.append(cfg)
             owners.append(c.condition_id)
-    res = run_sweep(configs, runner=runner, workers=workers, runs_dir=runs_dir)
+    res = run_sweep(configs, runner=runner, workers=workers, runs_dir=runs_dir,
+                    progress=progress)
     if not res.ok:
         raise RuntimeError("hidden dataset %s: %d twin run(s) failed:\n%s"
                            % (name, res.n_failed, res.failed()[["run_id", "error"]].to_string()))
@@ -87,9 +120,32 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     f_true = means.loc[ids, "f_col_hz"].to_numpy(float)
     v_meas = v_true * (1.0 + v_rel_sd * rng.standard_normal(len(ids)))
     f_meas = f_true + f_col_sd_hz * rng.standard_normal(len(ids))
-    summary = pd.DataFrame({"condition_id": ids, "v_mean_m_s": v_meas,
-                            "v_mean_sd_m_s": v_rel_sd * v_meas, "f_col_hz": f_meas,
-                            "f_col_sd_hz": np.full(len(ids), f_col_sd_hz)})
+    # the twin's own scatter of a mean of `replicates` runs, pooled over the conditions
+    g = t.groupby("condition_id", sort=False)
+    v_rel_rep = (float(np.sqrt(np.nanmean((g["v_mean_m_s"].std() / g["v_mean_m_s"].mean())
+                                          ** 2))) if replicates > 1 else 0.0)
+    f_rep = float(np.sqrt(np.nanmean(g["f_col_hz"].std() ** 2))) if replicates > 1 else 0.0
+    v_sd = np.hypot(v_rel_sd, v_rel_rep / np.sqrt(replicates)) * v_meas
+    f_sd = np.full(len(ids), math.hypot(f_col_sd_hz, f_rep / math.sqrt(replicates)))
+    summary = pd.DataFrame({"condition_id": ids, "v_mean_m_s": v_meas, "v_mean_sd_m_s": v_sd,
+                            "f_col_hz": f_meas, "f_col_sd_hz": f_sd})
+    yields, y_true = None, {}
+    if len(yield_times_min):
+        cond_by_id = conditions.set_index("condition_id")
+        rows = []
+        for cid, v, f in zip(ids, v_true, f_true):
+            m = kinetics.ball_mass_kg(float(cond_by_id.loc[cid, "ball_diameter_mm"]) * 1e-3)
+            e_kin = 0.5 * m * v * v
+            t_s = np.asarray(yield_times_min, float) * 60.0
+            x = (kin[0].yield_pct(e_kin, f, t_s, slope, intercept) if kin
+                 else slope * e_kin * f * t_s / 1000.0 + intercept)
+            y_true[cid] = [float(z) for z in np.atleast_1d(x)]
+            for tm, z in zip(yield_times_min, np.atleast_1d(x)):
+                # a measured yield lies in [0, 100] %
+                z_meas = min(max(float(z) + yield_sd_pct * rng.standard_normal(), 0.0), 100.0)
+                rows.append((cid, float(tm), z_meas, yield_sd_pct))
+        yields = pd.DataFrame(rows, columns=["condition_id", "time_min", "yield_pct",
+                                             "yield_sd_pct"])
     meta = {"name": name,
             "description": "SYNTHETIC hidden-effect dataset made from the twin with measurement "
                            "noise; its truth is kept apart (results/hidden/%s.truth.json)" % name,
@@ -97,10 +153,16 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     cond = conditions[["condition_id", "frequency_hz", "ball_diameter_mm"]].copy()
     out = Path(out_dir or MEASUREMENTS_DIR / name)
     ds = Dataset(name=name, description=meta["description"], source=meta["source"],
-                 velocity_frame="lab", conditions=cond, summary=summary, meta=meta)
+                 velocity_frame="lab", conditions=cond, summary=summary, yields=yields,
+                 meta=meta)
     ds_path = write_dataset(ds, out, overwrite=True)
     truth = {"name": name, "effects": effects, "base_config": base, "replicates": replicates,
-             "noise": {"v_rel_sd": v_rel_sd, "f_col_sd_hz": f_col_sd_hz, "seed": seed},
+             "noise": {"v_rel_sd": v_rel_sd, "f_col_sd_hz": f_col_sd_hz, "seed": seed,
+                       "twin_seed": seed if twin_seed is None else twin_seed,
+                       "yield_sd_pct": yield_sd_pct, "twin_v_rel_sd": v_rel_rep,
+                       "twin_f_col_sd_hz": f_rep},
+             "kinetics": {"slope_pct_per_kj": slope, "intercept_pct": intercept,
+                          "yield_times_min": list(yield_times_min), "yields_true": y_true},
              "twin_means": {cid: {"v_mean_m_s": float(v), "f_col_hz": float(f)}
                             for cid, v, f in zip(ids, v_true, f_true)},
              "run_ids": list(t["run_id"])}

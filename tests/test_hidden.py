@@ -64,3 +64,40 @@ def test_effect_spec_parsing_and_cli_errors(capsys):
                                                                 {"k": 0.05})
     assert main(["--name", "x", "--effect", "air_drag:drag_scale=abc", "--fake"]) == 2
     assert "not a number" in capsys.readouterr().err
+
+
+def test_yields_follow_the_powder_line_and_kinetics_effects_skip_the_twin(tmp_path):
+    """Yields at the stated times from the twin means through X = a E_tot + b; a kinetics
+    effect changes the yields but not the twin runs (same run ids as without it)."""
+    from analysis import kinetics
+    ds0, t0 = make(tmp_path, yield_sd_pct=0.0, v_rel_sd=0.0, f_col_sd_hz=0.0,
+                   out_dir=tmp_path / "a")
+    truth0 = json.loads(t0.read_text())
+    ds = load_dataset(ds0)
+    assert sorted(ds.yields["time_min"].unique()) == [2.5, 5.0, 7.5, 10.0]
+    r = ds.yields.iloc[-1]
+    cid = r["condition_id"]
+    d_m = float(ds.conditions.set_index("condition_id").loc[cid, "ball_diameter_mm"]) * 1e-3
+    m = truth0["twin_means"][cid]
+    e_tot = 0.5 * kinetics.ball_mass_kg(d_m) * m["v_mean_m_s"] ** 2 * m["f_col_hz"] * 600.0
+    expect = max(kinetics.PAPER_SLOPE_PCT_PER_KJ * e_tot / 1000 + kinetics.PAPER_INTERCEPT_PCT, 0)
+    assert float(r["yield_pct"]) == pytest.approx(expect, rel=1e-9)
+    ds1, t1 = make_hidden_dataset("k", {"air_drag": {}, "induction_period":
+                                        {"induction_energy_j": 400.0}},
+                                  replicates=2, seed=3, runner=run_fake_twin, workers=1,
+                                  runs_dir=tmp_path / "runs", out_dir=tmp_path / "b",
+                                  truth_dir=tmp_path / "truth", yield_sd_pct=0.0)
+    truth1 = json.loads(t1.read_text())
+    assert truth1["run_ids"] == truth0["run_ids"]
+    y1 = load_dataset(ds1).yields
+    drop = (ds.yields["yield_pct"].to_numpy() - y1["yield_pct"].to_numpy())
+    pos = y1["yield_pct"].to_numpy() > 0
+    assert np.allclose(drop[pos], kinetics.PAPER_SLOPE_PCT_PER_KJ * 0.4)
+
+
+def test_two_kinetics_effects_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="do not compose"):
+        make_hidden_dataset(
+            "h", {"induction_period": {}, "first_order_depletion": {}}, runner=run_fake_twin,
+            runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "t")
+    assert not (tmp_path / "runs").exists()

@@ -1,0 +1,284 @@
+"""make hidden-demo: hide an effect in twin data, find it blind, add it, watch the error fall.
+
+1. **hide**: a secret seed picks one catalog effect (never the decoy) and a strength; the real
+   twin makes a measurement dataset with it at the 8 Table-3 conditions (v_mean, f_col and yields
+   at 2.5-10 min, with measurement noise); the truth is sealed in a separate file;
+2. **compare** the calibrated twin (effects off) with the dataset: residuals, chi2/dof, heat map,
+   the failures in words;
+3. **diagnose** every catalog effect with the twin model (:mod:`analysis.twin_model`) and
+   **add** the verdict's effect (base parameters and strength refitted);
+4. **verify** on the real twin: rerun it at the refitted parameters with the added effect and
+   compare again (the error must fall with the twin, not only with its emulator);
+5. **reveal** the truth beside the verdict; a one-page report ``report.md`` with the figures.
+
+    python -m analysis.hidden_demo [--secret-seed 2026] [--effect name:param=value] [--out DIR]
+
+Twin runs are cached; the first run of the demo makes ~32 runs (~6 min on 2 idle cores).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.config import RESULTS_DIR
+from analysis import twin_model
+
+DEMO_DIR = RESULTS_DIR / "hidden_demo"
+
+
+def secret_choice(secret_seed):
+    """(effects spec, effect name, strength) picked by ``secret_seed``: a non-decoy candidate at
+    60-90 % of its diagnose range."""
+    rng = np.random.default_rng(secret_seed)
+    pool = [c for c in twin_model.CANDIDATES if c.name not in twin_model.DECOYS]
+    c = pool[int(rng.integers(len(pool)))]
+    s = float("%.3g" % (c.s_max * rng.uniform(0.6, 0.9)))
+    return c.spec(s), c.name, s
+
+
+def predictions_table(model, theta, effects=None):
+    """compare-style predictions (condition_id, observable, mean, sd, n_replicates, time_min) of
+    the twin model; sd is the per-run sd (se * sqrt(n))."""
+    mu = model.predict(theta, effects or {})
+    se = model.model_se(theta)
+    rows = []
+    for (cid, obs), m in mu.items():
+        t = np.nan
+        if obs.startswith("yield_pct@"):
+            t = float(obs.split("@")[1][:-3])
+            obs = "yield_pct"
+        rows.append({"condition_id": cid, "observable": obs, "mean": float(m),
+                     "sd": float(se[(cid, obs if obs != "yield_pct" else "yield_pct@%gmin" % t)])
+                     * math.sqrt(model.n_rep),
+                     "n_replicates": int(model.n_rep), "time_min": t})
+    return pd.DataFrame(rows)
+
+
+def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept, yield_times,
+                     replicates=2, workers=2, seed0=500, runs_dir=None, runner=None):
+    """compare-style predictions from real twin runs (mean and sd over ``replicates`` seeds);
+    yields from the runs' mean E_kin and f_col through the powder line or a kinetics effect."""
+    from effects import load_effects
+    from analysis import kinetics
+    from analysis.sweep import run_sweep
+    cfgs, owner = [], []
+    for c in conditions.itertuples():
+        for k in range(replicates):
+            cfg = dict(theta, frequency_hz=float(c.frequency_hz),
+                       ball_diameter_m=float(c.ball_diameter_mm) * 1e-3, seed=seed0 + k)
+            if dem_effects:
+                cfg["effects"] = dem_effects
+            cfgs.append(cfg)
+            owner.append(c.condition_id)
+    res = run_sweep(cfgs, runner=runner, workers=workers, runs_dir=runs_dir)
+    if not res.ok:
+        raise RuntimeError("verification runs failed:\n%s" % res.failed()[["run_id", "error"]])
+    t = res.table.reset_index(drop=True).assign(condition_id=owner)
+    kin = load_effects(kin_spec, side="kinetics") if kin_spec else []
+    rows = []
+    cond = conditions.set_index("condition_id")
+    for cid, g in t.groupby("condition_id", sort=False):
+        for obs in ("v_mean_m_s", "f_col_hz"):
+            rows.append({"condition_id": cid, "observable": obs, "mean": g[obs].mean(),
+                         "sd": g[obs].std(ddof=1) if len(g) > 1 else np.nan,
+                         "n_replicates": len(g), "time_min": np.nan})
+        m = kinetics.ball_mass_kg(float(cond.loc[cid, "ball_diameter_mm"]) * 1e-3)
+        v, f = g["v_mean_m_s"].mean(), g["f_col_hz"].mean()
+        e_kin = 0.5 * m * v * v
+        for tm in yield_times.get(cid, []):
+            ts = 60.0 * tm
+            x = (kin[0].yield_pct(e_kin, f, ts, slope, intercept) if kin
+                 else slope * e_kin * f * ts / 1000.0 + intercept)
+            x_sd = slope * m * v * f * ts * (g["v_mean_m_s"].std(ddof=1) if len(g) > 1
+                                              else 0.0) / 1000.0
+            rows.append({"condition_id": cid, "observable": "yield_pct", "mean": float(x),
+                         "sd": float(x_sd), "n_replicates": len(g), "time_min": float(tm)})
+    return pd.DataFrame(rows)
+
+
+def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, workers=2, replicates=2,
+             noise_seed=11, verify=True, runner=None, runs_dir=None, library=None,
+             emulator=None, say=print):
+    """The whole loop; returns a dict of its figures (also written to summary.json)."""
+    from analysis.compare import compare, write_report as write_compare
+    from analysis.diagnose import add_effect, diagnose, write_diagnosis
+    from analysis.hidden import make_hidden_dataset
+    from analysis.measurements import load_dataset
+    from analysis.plotting import compare_plots
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True)
+    library = library or twin_model.load_library()
+    theta_ref = dict(library[1]["theta_ref"])
+    if effect_spec is None:
+        effect_spec, _, _ = secret_choice(secret_seed)
+    times = {}
+
+    say("1/5 hide: the twin makes a dataset with a secret effect (truth sealed apart)")
+    t0 = time.perf_counter()
+    ds_path, truth_path = make_hidden_dataset(
+        "hidden_demo", effect_spec, replicates=replicates, seed=noise_seed,
+        base_config=theta_ref, runner=runner, workers=workers, runs_dir=runs_dir,
+        out_dir=out_dir / "dataset", truth_dir=out_dir / "sealed")
+    times["hide_s"] = time.perf_counter() - t0
+    ds = load_dataset(ds_path)
+
+    say("2/5 compare: the calibrated twin against the dataset")
+    t0 = time.perf_counter()
+    prob = twin_model.factory(ds, library=library, emulator=emulator)
+    model = prob["model"]
+    theta0 = {p.name: p.value for p in prob["base_params"]}
+    cmp0 = compare(ds, predictions_table(model, theta0))
+    write_compare(cmp0, ds, out_dir / "compare_before")
+    say("   " + cmp0.summary(2.0).replace("\n", "\n   "))
+
+    say("3/5 diagnose: which catalog effect explains the misfit?")
+    diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
+                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"])
+    say("   " + diag.verdict)
+    added = None
+    if diag.best:
+        say("4/5 add %s: refit the base parameters and its strength" % diag.best)
+        added = add_effect(prob["predict"], ds, prob["base_params"], prob["effects"], diag.best,
+                           model_se=prob["model_se"])
+        say("   " + added.summary())
+    else:
+        say("4/5 nothing to add")
+    write_diagnosis(diag, out_dir / "diagnose", added, ds.name)
+    times["compare_diagnose_add_s"] = time.perf_counter() - t0
+
+    verify_row = None
+    if verify and added is not None:
+        say("   verify on the real twin at the refitted parameters with %s" % added.effect)
+        t0 = time.perf_counter()
+        p = added.after.params
+        theta = dict(theta_ref, **{k: float("%.4g" % p[k]) for k in theta_ref if k in p})
+        cand = twin_model.candidates()[added.effect]
+        s = float(p[added.effect])
+        spec = cand.spec(s) if s > 0 else {}
+        dem = spec if cand.kind == "dem" else {}
+        kin = spec if cand.kind == "kinetics" else {}
+        pred = twin_predictions(ds.conditions, theta, dem, kin, p.get("slope_pct_per_kj", 0.0),
+                                p.get("intercept_pct", 0.0), model.yield_times_min,
+                                replicates=replicates, workers=workers, runner=runner,
+                                runs_dir=runs_dir)
+        n_fit = len(prob["base_params"]) + 1
+        cmp1 = compare(ds, pred, n_fitted_params=n_fit)
+        write_compare(cmp1, ds, out_dir / "compare_after_twin")
+        verify_row = {"stage": "with %s (twin rerun)" % added.effect, "chi2": cmp1.chi2,
+                      "dof": cmp1.dof, "chi2_dof": cmp1.chi2 / max(cmp1.dof, 1)}
+        times["verify_s"] = time.perf_counter() - t0
+        say("   twin rerun: chi2/dof %.2f" % verify_row["chi2_dof"])
+
+    say("5/5 reveal")
+    truth = json.loads(Path(truth_path).read_text())
+    true_name = next(iter(truth["effects"]), None)
+    true_s = (twin_model.candidates()[true_name].strength_of(
+        next(iter(truth["effects"][true_name].values()))) if true_name else 0.0)
+    tab = diag.table.set_index("effect")
+    reveal = {"hidden_effect": true_name, "hidden_params": truth["effects"].get(true_name),
+              "hidden_strength": true_s, "reported": diag.best, "status": diag.status,
+              "true_rank": int(tab.loc[true_name, "rank"]) if true_name in tab.index else None,
+              "fitted_strength": float(tab.loc[true_name, "strength"]) if true_name in tab.index
+              else None,
+              "fitted_strength_se": float(tab.loc[true_name, "strength_se"])
+              if true_name in tab.index else None,
+              "found": diag.best == true_name}
+    stair = added.staircase.copy() if added is not None else pd.DataFrame(
+        [{"stage": "calibrated", "chi2": diag.calibrated.chi2, "dof": diag.calibrated.dof,
+          "chi2_dof": diag.calibrated.chi2_dof}])
+    if verify_row:
+        stair = pd.concat([stair, pd.DataFrame([verify_row])], ignore_index=True)
+    stair.to_csv(out_dir / "staircase.csv", index=False)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    compare_plots.plot_residual_heatmap(cmp0, ax=axes[0])
+    axes[0].set_title("before: calibrated twin, no effect")
+    compare_plots.plot_chi2_staircase(stair, ax=axes[1])
+    fig.tight_layout()
+    fig.savefig(out_dir / "overview.png", dpi=110)
+    plt.close(fig)
+    times["total_s"] = time.perf_counter() - t_start
+    summary = {"reveal": reveal, "staircase": stair.to_dict("records"), "times": times,
+               "verdict": diag.verdict}
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    _write_page(out_dir, ds, cmp0, diag, added, stair, reveal, times, truth)
+    say("   hidden: %s %s (strength %.3g); reported: %s -> %s"
+        % (true_name, truth["effects"].get(true_name), true_s, diag.best,
+           "FOUND" if reveal["found"] else "NOT FOUND"))
+    say("wrote %s/report.md (%.0f s)" % (out_dir, times["total_s"]))
+    return summary
+
+
+def _write_page(out_dir, ds, cmp0, diag, added, stair, reveal, times, truth):
+    cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength", "strength_se",
+            "absorbed_frac", "identifiable", "significant"]
+    lines = ["# Hidden-effect demo (SYNTHETIC data from the twin)", "",
+             "A secret effect was switched on in the twin; the dataset (v_mean, f_col, yields at "
+             "8 conditions, with noise) was then compared, diagnosed and corrected blind.", "",
+             "## 1. Compare: the calibrated twin without effects", "",
+             "chi2/dof = %.2f (dof %d). Where it fails:" % (cmp0.chi2 / max(cmp0.dof, 1),
+                                                           cmp0.dof), "", "```",
+             cmp0.summary(2.0), "```", "", "![overview](overview.png)", "",
+             "## 2. Diagnose", "", "**Verdict:** " + diag.verdict, "",
+             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in diag.table.iterrows():
+        lines.append("| " + " | ".join(("%.3g" % r[c]) if isinstance(r[c], float) else str(r[c])
+                                      for c in cols) + " |")
+    lines += ["", "![ranking](diagnose/ranking.png)", "", "## 3. Add and verify", ""]
+    if added is not None:
+        lines += [added.summary(), ""]
+    lines += ["| stage | chi2 | dof | chi2/dof |", "|---|---|---|---|"]
+    for r in stair.itertuples():
+        lines.append("| %s | %.1f | %d | %.2f |" % (r.stage, r.chi2, r.dof, r.chi2_dof))
+    lines += ["", "The last row reruns the real twin at the refitted parameters with the added "
+              "effect (not the emulator).", "", "## 4. Reveal", "",
+              "| | |", "|---|---|",
+              "| hidden effect | %s %s |" % (reveal["hidden_effect"], reveal["hidden_params"]),
+              "| hidden strength (diagnose coordinate) | %.3g |" % reveal["hidden_strength"],
+              "| reported | %s (%s) |" % (reveal["reported"], reveal["status"]),
+              "| rank of the hidden effect | %s |" % reveal["true_rank"],
+              "| its fitted strength | %s |" % (
+                  "%.3g +- %.2g" % (reveal["fitted_strength"], reveal["fitted_strength_se"])
+                  if reveal["fitted_strength"] is not None else "-"),
+              "| found | %s |" % ("yes" if reveal["found"] else "NO"), "",
+              "Times: " + ", ".join("%s %.0f s" % (k, v) for k, v in times.items()), ""]
+    (Path(out_dir) / "report.md").write_text("\n".join(lines))
+
+
+def main(argv=None):
+    from analysis.hidden import parse_effect
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--secret-seed", type=int, default=2026,
+                    help="picks the hidden effect and strength (default %(default)s)")
+    ap.add_argument("--effect", help="hide this effect instead (name:param=value)")
+    ap.add_argument("--noise-seed", type=int, default=11)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--no-verify", action="store_true", help="skip the twin rerun")
+    ap.add_argument("--out", default=str(DEMO_DIR))
+    a = ap.parse_args(argv)
+    try:
+        spec = dict([parse_effect(a.effect)]) if a.effect else None
+        run_demo(a.out, secret_seed=a.secret_seed, effect_spec=spec, workers=a.workers,
+                 noise_seed=a.noise_seed, verify=not a.no_verify)
+    except (FileNotFoundError, RuntimeError, ValueError) as exc:
+        print("analysis.hidden_demo: error: %s" % exc, file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,297 @@
+"""The hidden-effect suite: does diagnose name the effect that was hidden in the data?
+
+Every case is a hidden-effect dataset (:func:`analysis.hidden.make_hidden_dataset`) made by the
+real twin at the calibrated parameters with one catalog effect switched on (or none), 8 Table-3
+conditions x 2 replicates, plus measurement noise (v 1.5 %, f_col 1 /s, yields 1 percentage
+point at 2.5-10 min); several noise seeds per twin data set. Each dataset is diagnosed blind with
+the twin model (:mod:`analysis.twin_model`), the verdict's effect is added, and the outcome is
+scored against the truth:
+
+* rank-1 rate of the true effect (goal >= 90 %) and how often it is significant;
+* the decoy (air drag) reported significant: goal never;
+* datasets without a hidden effect: "nothing missing" (goal: all of them);
+* chi2/dof calibrated -> with the added effect (goal <= 1.5 from >= 3x that);
+* the hidden effect's size: the largest shift of an observable, in sigma, against the twin
+  without it (cases must move some observable by >= 3 sigma).
+
+    python -m analysis.hidden_suite [--noise-seeds 5] [--workers 2] [--out results/hidden_suite]
+
+Twin runs are cached (results/runs), so a rerun or a killed suite recomputes nothing; the
+per-dataset outcome is appended to suite_rows.csv as it comes and reused by a rerun.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.config import RESULTS_DIR
+from analysis import twin_model
+
+SUITE_DIR = RESULTS_DIR / "hidden_suite"
+
+
+def suite_cases(dem_fracs=(0.7,), kin_fracs=(0.5, 0.9), include_null=True):
+    """(label, effects spec, true effect or None, strength coordinate) of the suite.
+
+    DEM effects at ``dem_fracs`` of their diagnose range (one twin data set each), kinetics
+    effects at ``kin_fracs`` (on the no-effect twin runs), the decoy never hidden (it is
+    physically negligible: a dataset with it is a no-effect dataset)."""
+    out = []
+    if include_null:
+        out.append(("none", {}, None, 0.0))
+    for c in twin_model.CANDIDATES:
+        if c.name in twin_model.DECOYS:
+            continue
+        for fr in (dem_fracs if c.kind == "dem" else kin_fracs):
+            s = fr * c.s_max
+            out.append(("%s@%g" % (c.name, fr), c.spec(s), c.name, s))
+    return out
+
+
+def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
+    """Diagnose one dataset blind, add the verdict's effect, score against the truth (a dict)."""
+    from analysis.diagnose import add_effect, diagnose
+    from analysis.measurements import load_dataset
+    ds = load_dataset(ds_path)
+    truth = json.loads(Path(truth_path).read_text())
+    prob = twin_model.factory(ds, **model_kwargs)
+    t0 = time.perf_counter()
+    diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
+                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    alpha=alpha)
+    true = [k for k in truth["effects"]]
+    true = true[0] if true else None
+    tab = diag.table.set_index("effect")
+    row = {"dataset": ds.name, "true_effect": true or "none",
+           "rank1": diag.table.iloc[0]["effect"], "status": diag.status,
+           "reported": diag.best or "", "verdict": diag.verdict,
+           "chi2_dof_calibrated": diag.calibrated.chi2_dof,
+           "chi2_dof_baseline": diag.baseline.chi2_dof,
+           "decoy_significant": bool(any(tab.loc[d, "significant"] for d in twin_model.DECOYS
+                                         if d in tab.index)),
+           "n_significant": int(diag.table["significant"].sum()),
+           "true_rank": np.nan, "true_significant": False, "true_strength_fit": np.nan,
+           "true_strength_se": np.nan, "chi2_dof_after_add": np.nan}
+    if true:
+        row.update(true_rank=int(tab.loc[true, "rank"]),
+                   true_significant=bool(tab.loc[true, "significant"]),
+                   true_strength_fit=float(tab.loc[true, "strength"]),
+                   true_strength_se=float(tab.loc[true, "strength_se"]))
+    row["shift_sigma_max"] = shift_sigma(prob["model"], ds, truth)
+    if diag.best:
+        add = add_effect(prob["predict"], ds, prob["base_params"], prob["effects"], diag.best,
+                         model_se=prob["model_se"])
+        row["chi2_dof_after_add"] = float(add.staircase["chi2_dof"].iloc[-1])
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def shift_sigma(model, ds, truth):
+    """Largest |truth - twin without the effect| / sd over the observables: the hidden effect's
+    size in units of the dataset's noise (the twin without it = the model at theta_ref)."""
+    from analysis import kinetics
+    theta = dict(model.theta_ref, slope_pct_per_kj=truth["kinetics"]["slope_pct_per_kj"],
+                 intercept_pct=truth["kinetics"]["intercept_pct"])
+    base = model.predict(theta, {})
+    sd = {}
+    for r in ds.summary.itertuples():
+        sd[(r.condition_id, "v_mean_m_s")] = float(r.v_mean_sd_m_s)
+        sd[(r.condition_id, "f_col_hz")] = float(r.f_col_sd_hz)
+    if ds.yields is not None:
+        for r in ds.yields.itertuples():
+            sd[(r.condition_id, "yield_pct@%gmin" % r.time_min)] = float(r.yield_sd_pct)
+    out = 0.0
+    for cid, m in truth["twin_means"].items():
+        for obs in ("v_mean_m_s", "f_col_hz"):
+            out = max(out, abs(m[obs] - base[(cid, obs)]) / sd[(cid, obs)])
+        times = truth["kinetics"]["yield_times_min"]
+        for t, y in zip(times, truth["kinetics"]["yields_true"].get(cid, [])):
+            k = (cid, "yield_pct@%gmin" % t)
+            out = max(out, abs(y - base[k]) / sd[k])
+    del kinetics
+    return out
+
+
+def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, cases=None,
+              runner=None, runs_dir=None, library=None, emulator=None, progress=True):
+    """Make, diagnose and score every case x noise seed; returns the rows table."""
+    from tqdm.auto import tqdm
+    from analysis.hidden import make_hidden_dataset
+    out_dir = Path(out_dir)
+    ds_root = out_dir / "datasets"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows_file = out_dir / "suite_rows.csv"
+    done = read_rows(rows_file) if rows_file.exists() else pd.DataFrame()
+    done_names = set(done["dataset"]) if len(done) else set()
+    cases = suite_cases() if cases is None else cases
+    if library is None:
+        library = twin_model.load_library()
+    theta_ref = dict(library[1]["theta_ref"])
+    if emulator is None:
+        emulator = twin_model.base_emulator()
+    model_kwargs = {"library": library, "emulator": emulator}
+    jobs = [(c, s) for c in cases for s in noise_seeds]
+    bar = tqdm(jobs, desc="hidden suite", unit="dataset", disable=not progress)
+    for (label, spec, true, s), seed in bar:
+        name = "suite_%s_n%d" % (label.replace("@", "_"), seed)
+        if name in done_names:
+            continue
+        ds_path, truth_path = make_hidden_dataset(
+            name, spec, replicates=2, seed=seed, twin_seed=twin_seed, base_config=theta_ref,
+            runner=runner, workers=workers, runs_dir=runs_dir, out_dir=ds_root / name,
+            truth_dir=out_dir / "truth", progress=False)
+        row = score_case(ds_path, truth_path, model_kwargs)
+        row.update(case=label, noise_seed=seed, strength_true=s)
+        done = pd.concat([done, pd.DataFrame([row])], ignore_index=True)
+        tmp = rows_file.with_suffix(".tmp")
+        done.to_csv(tmp, index=False)
+        tmp.replace(rows_file)
+    return read_rows(rows_file)
+
+
+def read_rows(path):
+    """The suite table as written (empty 'reported' = nothing reported)."""
+    rows = pd.read_csv(path)
+    rows["reported"] = rows["reported"].fillna("").astype(str)
+    return rows
+
+
+def summarise(rows: pd.DataFrame) -> dict:
+    """The goal figures of a suite table."""
+    eff = rows[rows["true_effect"] != "none"]
+    nul = rows[rows["true_effect"] == "none"]
+    big = eff[eff["shift_sigma_max"] >= 3.0]
+    added = rows[rows["chi2_dof_after_add"].notna()] if "chi2_dof_after_add" in rows else rows[:0]
+    qual = added[added["chi2_dof_calibrated"] >= 4.5]
+    out = {"n_datasets": int(len(rows)), "n_effect_datasets": int(len(eff)),
+           "n_effect_datasets_ge_3sigma": int(len(big)),
+           "rank1_rate": float((big["rank1"] == big["true_effect"]).mean()) if len(big) else None,
+           "true_reported_rate": (float((big["reported"] == big["true_effect"]).mean())
+                                  if len(big) else None),
+           "decoy_significant": int(rows["decoy_significant"].sum()),
+           "n_null_datasets": int(len(nul)),
+           "null_nothing_missing": int((nul["status"] == "nothing_missing").sum()),
+           "n_added": int(len(added)),
+           "n_added_from_ge_4.5": int(len(qual)),
+           "added_reaching_1.5": int((qual["chi2_dof_after_add"] <= 1.5).sum()),
+           "median_seconds_per_diagnosis": float(rows["seconds"].median())}
+    return out
+
+
+def per_effect(rows):
+    eff = rows[rows["true_effect"] != "none"].copy()
+    eff["rank1_ok"] = eff["rank1"] == eff["true_effect"]
+    eff["reported_ok"] = eff["reported"] == eff["true_effect"]
+    g = eff.groupby("case", sort=False)
+    return g.agg(n=("dataset", "size"), shift_sigma=("shift_sigma_max", "median"),
+                 rank1_rate=("rank1_ok", "mean"), reported_rate=("reported_ok", "mean"),
+                 chi2_dof_calibrated=("chi2_dof_calibrated", "median"),
+                 chi2_dof_after_add=("chi2_dof_after_add", "median")).reset_index()
+
+
+def write_report(rows, out_dir=SUITE_DIR):
+    """summary.json, per_effect.csv, confusion.png and README.md (the report page)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out_dir = Path(out_dir)
+    summ = summarise(rows)
+    pe = per_effect(rows)
+    (out_dir / "summary.json").write_text(json.dumps(summ, indent=1))
+    pe.to_csv(out_dir / "per_effect.csv", index=False)
+    truths = list(dict.fromkeys(rows["true_effect"]))
+    said = [n for n in truths] + sorted(set(rows["reported"].replace("", "nothing"))
+                                        - set(truths) - {"nothing"}) + ["nothing"]
+    M = np.zeros((len(truths), len(said)))
+    for r in rows.itertuples():
+        j = said.index(r.reported if r.reported else "nothing")
+        M[truths.index(r.true_effect), j] += 1
+    M /= np.maximum(M.sum(1, keepdims=True), 1)
+    fig, ax = plt.subplots(figsize=(8, 5))
+    ax.imshow(M, cmap="Blues", vmin=0, vmax=1)
+    ax.set_xticks(range(len(said)), said, rotation=40, ha="right", fontsize=7)
+    ax.set_yticks(range(len(truths)), truths, fontsize=7)
+    for i in range(len(truths)):
+        for j in range(len(said)):
+            if M[i, j] > 0:
+                ax.text(j, i, "%.0f%%" % (100 * M[i, j]), ha="center", va="center", fontsize=7)
+    ax.set_xlabel("reported by diagnose")
+    ax.set_ylabel("hidden in the data")
+    ax.set_title("Hidden-effect suite: what diagnose reports")
+    fig.tight_layout()
+    fig.savefig(out_dir / "confusion.png", dpi=120)
+    plt.close(fig)
+    lines = ["# Hidden-effect suite", "",
+             "Datasets made by the real twin at the calibrated parameters with one catalog effect "
+             "hidden (or none), diagnosed blind with `analysis.twin_model` (see "
+             "`analysis/hidden_suite.py`). SYNTHETIC data throughout.", "",
+             "| figure | value | goal |", "|---|---|---|",
+             "| datasets (effect / none) | %d / %d | |" % (summ["n_effect_datasets"],
+                                                       summ["n_null_datasets"]),
+             "| effect datasets moving an observable >= 3 sigma | %d | all |"
+             % summ["n_effect_datasets_ge_3sigma"],
+             "| true effect ranked first | %s | >= 90 %% |" % _pct(summ["rank1_rate"]),
+             "| true effect reported (significant) | %s | |" % _pct(summ["true_reported_rate"]),
+             "| decoy (air drag) significant | %d | 0 |" % summ["decoy_significant"],
+             "| no-effect datasets: nothing missing | %d / %d | all |"
+             % (summ["null_nothing_missing"], summ["n_null_datasets"]),
+             "| added effects starting from chi2/dof >= 4.5 that end <= 1.5 | %d / %d | all |"
+             % (summ["added_reaching_1.5"], summ["n_added_from_ge_4.5"]),
+             "| median time per diagnosis + add | %.1f s | |"
+             % summ["median_seconds_per_diagnosis"], "",
+             "## Per case", "", pe.to_markdown(index=False, floatfmt=".3g")
+             if hasattr(pe, "to_markdown") and _has_tabulate() else pe.to_string(index=False),
+             "", "![confusion](confusion.png)", ""]
+    (out_dir / "README.md").write_text("\n".join(lines))
+    return summ
+
+
+def _has_tabulate():
+    try:
+        import tabulate  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def _pct(x):
+    return "n/a" if x is None else "%.0f %%" % (100 * x)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--noise-seeds", type=int, default=5)
+    ap.add_argument("--twin-seed", type=int, default=7)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", default=str(SUITE_DIR))
+    ap.add_argument("--fresh", action="store_true", help="forget earlier suite rows")
+    a = ap.parse_args(argv)
+    if a.noise_seeds < 1:
+        print("analysis.hidden_suite: error: --noise-seeds must be >= 1", file=sys.stderr)
+        return 2
+    if a.fresh and Path(a.out).exists():
+        shutil.rmtree(a.out)
+    t0 = time.perf_counter()
+    try:
+        rows = run_suite(a.out, noise_seeds=range(a.noise_seeds), twin_seed=a.twin_seed,
+                         workers=a.workers)
+    except (FileNotFoundError, RuntimeError, ValueError) as exc:
+        print("analysis.hidden_suite: error: %s" % exc, file=sys.stderr)
+        return 2
+    summ = write_report(rows, a.out)
+    print(per_effect(rows).to_string(index=False))
+    for k, v in summ.items():
+        print("%-32s %s" % (k, v))
+    print("suite wall time %.0f s (twin runs cached in results/runs)" % (time.perf_counter() - t0))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

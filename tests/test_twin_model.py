@@ -1,0 +1,207 @@
+"""The twin model for diagnose (analysis.twin_model), the hidden suite and the hidden demo, on
+the FAKE analytic twin (its toy effect responses, analysis.fake_twin.toy_effect_factor): the
+assembly of anchor + GP difference + signatures, the kinetics, and the blind loop end to end."""
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis import kinetics, twin_model
+from analysis.calibrate import condition_configs
+from analysis.emulator import GPEmulator
+from analysis.fake_twin import run_fake_twin, simulate_fake
+from analysis.measurements import load_dataset
+
+THETA = {"restitution": 0.35, "static_friction": 0.45, "rolling_friction": 0.25,
+         "amplitude_m": 0.0127}
+
+
+@pytest.fixture(scope="module")
+def fake(tmp_path_factory):
+    return make_fake(tmp_path_factory.mktemp("tm"))
+
+
+def make_fake(root):
+    """A signature library and a base emulator made with the fake twin (4 replicates)."""
+    summ = twin_model.build_library(root / "lib", replicates=4, workers=1,
+                                    runs_dir=root / "runs", runner=run_fake_twin,
+                                    theta_ref=THETA)
+    library = twin_model.load_library(root / "lib")
+    from analysis.measurements import load_dataset as ld
+    from analysis.config import PAPER_TABLE3_DIR
+    cond = ld(PAPER_TABLE3_DIR).conditions.assign(
+        ball_diameter_m=lambda d: d["ball_diameter_mm"] * 1e-3)
+    rng = np.random.default_rng(0)
+    rows = []
+    for k in range(12):
+        th = {"restitution": rng.uniform(0.1, 0.7), "static_friction": rng.uniform(0.3, 0.7),
+              "rolling_friction": rng.uniform(0.1, 0.5), "amplitude_m": rng.uniform(0.010, 0.016)}
+        t = simulate_fake(condition_configs(th, cond, seed=k))
+        rows.append(t)
+    d = pd.concat(rows, ignore_index=True)
+    names = ["restitution", "static_friction", "rolling_friction", "amplitude_m",
+             "frequency_hz", "ball_diameter_m"]
+    em = GPEmulator({k: (float(d[k].min()), float(d[k].max())) for k in names},
+                    random_state=0, n_restarts_optimizer=0).fit(d[names], d[["v_mean_m_s",
+                                                                              "f_col_hz"]])
+    return {"root": root, "summ": summ, "library": library, "emulator": em, "conditions": cond}
+
+
+def model_for(fake, times=None):
+    return twin_model.TwinModel(fake["conditions"], times or {}, library=fake["library"],
+                                emulator=fake["emulator"])
+
+
+def test_library_has_every_dem_candidate_at_its_signature_strength(fake):
+    s = fake["summ"]
+    dem = [c for c in twin_model.CANDIDATES if c.kind == "dem"]
+    assert set(s["label"]) == {"none"} | {c.name for c in dem}
+    for c in dem:
+        assert (s.loc[s["label"] == c.name, "strength"] == c.s_max).all()
+    assert (s["n"] == 4).all()
+    assert (fake["root"] / "lib" / "signatures.png").stat().st_size > 1000
+
+
+def test_model_reproduces_anchor_and_signatures(fake):
+    m = model_for(fake)
+    s = fake["summ"].set_index(["label", "condition_id"])
+    p0 = m.predict(THETA, {})
+    for cid in m.conditions["condition_id"]:
+        assert p0[(cid, "v_mean_m_s")] == pytest.approx(s.loc[("none", cid), "v_mean_m_s"],
+                                                         rel=1e-9)
+    c = twin_model.candidates()["jar_compliance"]
+    full = m.predict(THETA, {"jar_compliance": c.s_max})
+    half = m.predict(THETA, {"jar_compliance": 0.5 * c.s_max})
+    for cid in m.conditions["condition_id"]:
+        v_lib = s.loc[("jar_compliance", cid), "v_mean_m_s"]
+        assert full[(cid, "v_mean_m_s")] == pytest.approx(v_lib, rel=1e-9)
+        assert half[(cid, "v_mean_m_s")] == pytest.approx(
+            0.5 * (v_lib + p0[(cid, "v_mean_m_s")]), rel=1e-9)
+
+
+def test_base_parameters_move_the_prediction_like_the_fake_twin(fake):
+    """The GP difference follows the toy: raising A by 10 % raises v by ~10 %."""
+    m = model_for(fake)
+    p0 = m.predict(THETA, {})
+    p1 = m.predict(dict(THETA, amplitude_m=THETA["amplitude_m"] * 1.1), {})
+    ratio = (p1.xs("v_mean_m_s", level=1) / p0.xs("v_mean_m_s", level=1)).to_numpy()
+    assert np.all(np.abs(ratio - 1.1) < 0.03)
+
+
+def test_yields_follow_the_powder_line_and_kinetics_effects(fake):
+    times = {cid: [5.0, 10.0] for cid in fake["conditions"]["condition_id"]}
+    m = model_for(fake, times)
+    th = dict(THETA, slope_pct_per_kj=9.49, intercept_pct=-3.03)
+    p = m.predict(th, {})
+    cid = "f25_d20.6"
+    v, f = p[(cid, "v_mean_m_s")], p[(cid, "f_col_hz")]
+    e = 0.5 * kinetics.ball_mass_kg(0.0206) * v * v * f * 600.0
+    assert p[(cid, "yield_pct@10min")] == pytest.approx(9.49 * e / 1000 - 3.03, rel=1e-9)
+    q = m.predict(th, {"induction_period": 500.0})
+    assert q[(cid, "yield_pct@10min")] == pytest.approx(9.49 * (e - 500) / 1000 - 3.03,
+                                                        rel=1e-9)
+    with pytest.raises(ValueError, match="do not compose"):
+        m.predict(th, {"induction_period": 500.0, "first_order_depletion": 0.5})
+    with pytest.raises(ValueError, match="unknown effect"):
+        m.predict(th, {"no_such": 1.0})
+    se = m.model_se(th)
+    assert (se > 0).all() and len(se) == len(p)
+
+
+def test_strength_coordinates_round_trip():
+    for c in twin_model.CANDIDATES:
+        s = 0.37 * c.s_max
+        assert c.strength_of(c.param_value(s)) == pytest.approx(s, rel=1e-12)
+    jc = twin_model.candidates()["jar_compliance"]
+    assert jc.param_value(1.0) == pytest.approx(100.0)
+    import effects
+    for c in twin_model.CANDIDATES:   # the top of every range is inside the catalog's bounds
+        effects.validate(c.name, c.spec(c.s_max)[c.name])
+
+
+def test_library_errors(fake, tmp_path):
+    with pytest.raises(FileNotFoundError, match="make signatures"):
+        twin_model.load_library(tmp_path)
+    other = pd.DataFrame({"condition_id": ["elsewhere"], "frequency_hz": [20.0],
+                          "ball_diameter_mm": [10.0]})
+    with pytest.raises(ValueError, match="no runs at condition"):
+        twin_model.TwinModel(other, {}, library=fake["library"], emulator=fake["emulator"])
+
+
+def blind(fake, spec, seed, name):
+    from analysis.hidden import make_hidden_dataset
+    from analysis.hidden_suite import score_case
+    ds, truth = make_hidden_dataset(name, spec, replicates=2, seed=seed,
+                                    base_config=THETA, runner=run_fake_twin, workers=1,
+                                    runs_dir=fake["root"] / "runs",
+                                    out_dir=fake["root"] / "ds" / name,
+                                    truth_dir=fake["root"] / "truth", progress=False)
+    return score_case(ds, truth, {"library": fake["library"], "emulator": fake["emulator"]})
+
+
+@pytest.mark.parametrize("spec,true", [
+    ({"temperature_rise": {"thermal_resistance_k_w": 0.8}}, "temperature_rise"),
+    ({"powder_layer": {"layer_thickness_m": 9e-4}}, "powder_layer"),
+    ({"induction_period": {"induction_energy_j": 1000.0}}, "induction_period"),
+])
+def test_blind_fake_cases_find_the_hidden_effect(fake, spec, true):
+    row = blind(fake, spec, 1, "case_" + true)
+    assert row["shift_sigma_max"] >= 3
+    assert row["rank1"] == true and row["reported"] == true
+    assert not row["decoy_significant"]
+    assert row["chi2_dof_after_add"] <= 1.5 < row["chi2_dof_calibrated"]
+
+
+def test_blind_fake_null_says_nothing_missing(fake):
+    row = blind(fake, {}, 2, "case_null")
+    assert row["status"] == "nothing_missing" and row["reported"] == ""
+    assert not row["decoy_significant"]
+
+
+def test_suite_resumes_and_summarises(fake, tmp_path):
+    from analysis import hidden_suite
+    cases = [("none", {}, None, 0.0),
+             ("jar_compliance@0.8", twin_model.candidates()["jar_compliance"].spec(1.2),
+              "jar_compliance", 1.2)]
+    kw = dict(noise_seeds=range(2), twin_seed=3, workers=1, cases=cases, runner=run_fake_twin,
+              runs_dir=fake["root"] / "runs", library=fake["library"],
+              emulator=fake["emulator"], progress=False)
+    rows = hidden_suite.run_suite(tmp_path / "suite", **kw)
+    assert len(rows) == 4
+    again = hidden_suite.run_suite(tmp_path / "suite", **kw)   # nothing recomputed
+    pd.testing.assert_frame_equal(rows, again)
+    summ = hidden_suite.write_report(rows, tmp_path / "suite")
+    assert summ["n_null_datasets"] == 2 and summ["n_effect_datasets"] == 2
+    assert (tmp_path / "suite" / "README.md").read_text().count("|") > 10
+    assert (tmp_path / "suite" / "confusion.png").exists()
+
+
+def test_hidden_demo_end_to_end_on_the_fake(fake, tmp_path):
+    from analysis import hidden_demo
+    spec = {"powder_layer": {"layer_thickness_m": 9e-4}}
+    out = hidden_demo.run_demo(tmp_path / "demo", effect_spec=spec, workers=1,
+                               runner=run_fake_twin, runs_dir=fake["root"] / "runs",
+                               library=fake["library"], emulator=fake["emulator"],
+                               say=lambda *a: None)
+    assert out["reveal"]["found"] and out["reveal"]["hidden_effect"] == "powder_layer"
+    stair = pd.read_csv(tmp_path / "demo" / "staircase.csv")
+    assert stair["chi2_dof"].iloc[1] > 3 * stair["chi2_dof"].iloc[2]
+    assert stair["stage"].iloc[-1].endswith("(twin rerun)")
+    assert stair["chi2_dof"].iloc[-1] < stair["chi2_dof"].iloc[1]
+    page = (tmp_path / "demo" / "report.md").read_text()
+    assert "powder_layer" in page and "Reveal" in page
+    # the sealed truth lives outside the dataset folder
+    assert not list((tmp_path / "demo" / "dataset").glob("*truth*"))
+
+
+def test_secret_choice_is_never_the_decoy():
+    names = {twin_model.candidates()[next(iter(hidden_demo_choice(s)[0]))].name
+             for s in range(40)}
+    assert not names & set(twin_model.DECOYS) and len(names) >= 5
+
+
+def hidden_demo_choice(seed):
+    from analysis.hidden_demo import secret_choice
+    return secret_choice(seed)
