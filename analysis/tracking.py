@@ -923,13 +923,15 @@ def decode_ahead(cap, batch: int = 32, depth: int = 3):
         ok, f = cap.read(dst)
         if not ok or f is None:
             return False
+        if f is dst:  # decoded in place (grey uint8 of the same size)
+            return True
+        if f.shape[:2] != dst.shape:
+            return None
         if f.ndim == 3:
             cv2.cvtColor(f, cv2.COLOR_BGR2GRAY, dst)
-        elif f.shape != dst.shape:
-            return None
         elif f.dtype != np.uint8:
             cv2.convertScaleAbs(f, dst)
-        elif f.ctypes.data != dst.ctypes.data:  # OpenCV returned a new array
+        else:
             dst[...] = f
         return True
 
