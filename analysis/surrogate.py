@@ -11,7 +11,9 @@ y = [v_mean_m_s, f_col_hz]. Three regressors, all following the scikit-learn est
   (:class:`GPSurrogate`), with predictive standard deviations.
 
 The training data is a table of twin outputs (CSV: frequency_hz, ball_diameter_m, bvr,
-v_mean_m_s, f_col_hz, optional run_id). :func:`design_27` gives the 27-run design (9 frequencies
+v_mean_m_s, f_col_hz, optional run_id); rows that repeat a (frequency, ball) point are replicate
+runs (other seeds / start positions) and are averaged into one training point
+(:func:`average_replicates`, which records n_replicates). :func:`design_27` gives the 27-run design (9 frequencies
 20-30 Hz x 3 balls). We use 14.3, 17.5 and 20.6 mm: the paper's 14.3 and 17.5 mm and the
 measured 20.6 mm ball in place of the paper's 20 mm, so that the Table 5 validation cases
 (10 mm ball RADIUS, i.e. d = 20 mm, at 25 / 27.5 / 30 Hz) are interpolations, not training runs,
@@ -203,6 +205,70 @@ def load_twin_table(path, jar_volume_m3: float = JAR_VOLUME_M3) -> pd.DataFrame:
     if "source" not in df.columns:
         df["source"] = f"twin outputs ({path.name})"
     return df
+
+
+def average_replicates(df: pd.DataFrame) -> pd.DataFrame:
+    """One row per design point: the mean of its replicate runs (seeds / start positions).
+
+    Rows with the same (frequency_hz, ball_diameter_m) are replicates (keys rounded to 1e-6 Hz and
+    1e-7 m). The twin is chaotic - one run's v_mean scatters by ~1 % between start positions - so
+    the surrogates are trained and split on design points, never on single runs (a 70/30 split
+    over runs would put replicates of a test point into the training set). Points keep the order
+    of their first run, so a table with one run per point is returned unchanged apart from the
+    added columns.
+
+    Parameters
+    ----------
+    df : DataFrame - frequency_hz, ball_diameter_m, v_mean_m_s, f_col_hz [, bvr, e_kin_j,
+        run_id, motion_mode, source, ...]; already averaged rows carry n_replicates
+
+    Returns
+    -------
+    DataFrame, one row per point: the input columns (numeric ones averaged, run_id and
+    motion_mode joined with '/', others taken from the first run) plus n_replicates,
+    v_mean_sd_m_s and f_col_sd_hz (sample sd over the replicates; NaN for a single run).
+    A table that is already one row per point keeps its n_replicates and sd columns.
+
+    Raises
+    ------
+    SurrogateInputError if a point repeats in a table that is already averaged (n_replicates).
+    """
+    for col in ("frequency_hz", "ball_diameter_m", "v_mean_m_s", "f_col_hz"):
+        if col not in df.columns:
+            raise SurrogateInputError(f"average_replicates: missing column '{col}'")
+    keys = pd.DataFrame({"f_key": pd.to_numeric(df["frequency_hz"]).round(6).to_numpy(),
+                         "d_key": pd.to_numeric(df["ball_diameter_m"]).round(7).to_numpy()})
+    point = keys.groupby(["f_key", "d_key"], sort=False).ngroup().to_numpy()
+    n_points = int(point.max()) + 1 if len(point) else 0
+    if n_points == len(df):           # one row per point: nothing to average
+        out = df.copy().reset_index(drop=True)
+        if "n_replicates" not in out.columns:
+            out["n_replicates"] = 1
+        for sd in ("v_mean_sd_m_s", "f_col_sd_hz"):
+            if sd not in out.columns:
+                out[sd] = np.nan
+        return out
+    if "n_replicates" in df.columns:
+        raise SurrogateInputError("average_replicates: the table already has n_replicates (rows "
+                                  "are means) but repeats a (frequency_hz, ball_diameter_m) point")
+    df = df.reset_index(drop=True)
+    g = df.groupby(point, sort=True)  # group labels number the points by first appearance
+    out = {}
+    for col in df.columns:
+        if col in ("run_id", "motion_mode"):
+            out[col] = g[col].agg(lambda s: "/".join(map(str, s)) if col == "run_id"
+                                  else "/".join(sorted(set(map(str, s)))))
+        elif pd.api.types.is_numeric_dtype(df[col]) and col != "seed":
+            out[col] = g[col].mean()
+        elif col == "seed":
+            out[col] = g[col].agg(lambda s: "/".join(map(str, s)))
+        else:
+            out[col] = g[col].first()
+    out = pd.DataFrame(out)
+    out["n_replicates"] = g.size()
+    out["v_mean_sd_m_s"] = g["v_mean_m_s"].std()
+    out["f_col_sd_hz"] = g["f_col_hz"].std()
+    return out.reset_index(drop=True)
 
 
 def features(df: pd.DataFrame) -> np.ndarray:
@@ -397,11 +463,14 @@ def train_surrogates(table: pd.DataFrame, kinds=KINDS, test_size: float = 0.3, r
                      rf_param_grid: dict | None = None) -> dict:
     """Fit each surrogate kind on a (1 - test_size)/test_size split of the twin table.
 
+    Replicate runs are averaged first (:func:`average_replicates`): the split, seeded by
+    ``random_state`` (sklearn ``train_test_split``), is over design points.
+
     Returns
     -------
     dict kind -> SurrogateFitResult
     """
-    table = validate_twin_table(table)
+    table = average_replicates(validate_twin_table(table))
     X, Y = features(table), targets(table)
     idx = np.arange(len(table))
     tr, te = train_test_split(idx, test_size=test_size, random_state=random_state)
@@ -410,7 +479,7 @@ def train_surrogates(table: pd.DataFrame, kinds=KINDS, test_size: float = 0.3, r
         model = make_surrogate(kind, random_state, rf_param_grid).fit(X[tr], Y[tr])
         P = model.predict(X)
         split = np.where(np.isin(idx, tr), "train", "test")
-        pred = table[["frequency_hz", "ball_diameter_m", "bvr"]].copy()
+        pred = table[["frequency_hz", "ball_diameter_m", "bvr", "n_replicates"]].copy()
         pred["split"] = split
         for j, o in enumerate(OUTPUTS):
             pred[o] = Y[:, j]
@@ -432,13 +501,15 @@ def validation_errors(models: dict, validation: pd.DataFrame) -> pd.DataFrame:
 
     Returns
     -------
-    DataFrame, one row per case: case, frequency_hz, ball_radius_mm, and
-    v_err_<kind>_pct, fcol_err_<kind>_pct (absolute percentage errors)
+    DataFrame, one row per case: case, frequency_hz, ball_radius_mm, (n_replicates when the
+    validation table has it), and v_err_<kind>_pct, fcol_err_<kind>_pct (absolute % errors)
     """
     X, Y = features(validation), targets(validation)
     out = pd.DataFrame({"case": np.arange(1, len(validation) + 1),
                         "frequency_hz": validation["frequency_hz"].to_numpy(),
                         "ball_radius_mm": validation["ball_diameter_m"].to_numpy() * 500.0})
+    if "n_replicates" in validation.columns:
+        out["n_replicates"] = validation["n_replicates"].to_numpy()
     for kind, m in models.items():
         m = getattr(m, "model", m)
         P = np.asarray(m.predict(X)).reshape(-1, 2)
@@ -456,12 +527,13 @@ def learning_curve(table: pd.DataFrame, kinds=("lr", "gp"), train_sizes=None, n_
     A fixed test split (test_size) is held out; for each size n, ``n_repeats`` random subsets
     of n training runs are drawn (seeded) and each surrogate is refit. With ``truth`` (callable
     (f, d) -> (v, f_col)) errors are measured against the noise-free truth at the test inputs.
+    Replicates are averaged first: n_train counts design points.
 
     Returns
     -------
     DataFrame: kind, n_train, repeat, output, mape_pct, max_ape_pct, rmse
     """
-    table = validate_twin_table(table)
+    table = average_replicates(validate_twin_table(table))
     X, Y = features(table), targets(table)
     idx = np.arange(len(table))
     tr, te = train_test_split(idx, test_size=test_size, random_state=random_state)
@@ -500,7 +572,7 @@ class SurrogateBundle:
     domain : DomainCheck - fitted on the training inputs [frequency_hz, bvr]
     jar_volume_m3 : float - jar volume the BVRs refer to
     source : str - what the training table was (twin / Table 3 stand-in / SYNTHETIC)
-    n_runs : int
+    n_runs : int - twin runs behind the training points (sum of n_replicates)
     """
 
     models: dict
@@ -580,15 +652,17 @@ class SurrogateBundle:
 
 def fit_bundle(table: pd.DataFrame, kinds=KINDS, random_state=0, rf_param_grid=None,
                jar_volume_m3: float = JAR_VOLUME_M3, source: str | None = None) -> SurrogateBundle:
-    """Refit every surrogate kind on all runs of the table and fit the domain check."""
-    table = validate_twin_table(table, jar_volume_m3=jar_volume_m3)
+    """Refit every surrogate kind on all points of the table (replicates averaged) and fit the
+    domain check."""
+    table = average_replicates(validate_twin_table(table, jar_volume_m3=jar_volume_m3))
     X, Y = features(table), targets(table)
     models = {k: make_surrogate(k, random_state, rf_param_grid).fit(X, Y) for k in kinds}
     if source is None:
         source = str(table["source"].iloc[0]) if "source" in table.columns else "twin table"
     return SurrogateBundle(models=models, domain=DomainCheck().fit(X), jar_volume_m3=jar_volume_m3,
-                           source=source, n_runs=len(table),
-                           extra={k: _model_params(k, m) for k, m in models.items()})
+                           source=source, n_runs=int(table["n_replicates"].sum()),
+                           extra={"n_points": len(table),
+                                  **{k: _model_params(k, m) for k, m in models.items()}})
 
 
 BUNDLE_PATH = config.SURROGATE_DIR / "surrogate.joblib"
@@ -626,9 +700,10 @@ def run(args) -> Path:
         truth = synthetic_truth
     else:
         table = table3_twin_table(jar)
+    table = average_replicates(table)   # one row per design point (mean of its runs)
     source = str(table["source"].iloc[0])
     if args.validation_table is not None:
-        val = load_twin_table(args.validation_table, jar)
+        val = average_replicates(load_twin_table(args.validation_table, jar))
     elif truth is not None:
         f = np.array([c[0] for c in VALIDATION_CASES])
         d = np.array([c[1] for c in VALIDATION_CASES])
@@ -658,7 +733,10 @@ def run(args) -> Path:
         if lc is not None:
             lc.to_csv(tmp / "learning_curve.csv", index=False)
         (tmp / "source.json").write_text(json.dumps(
-            {"source": source, "n_runs": len(table), "kinds": args.kinds, "seed": args.seed,
+            {"source": source, "n_points": len(table), "n_runs": int(table["n_replicates"].sum()),
+             "n_replicates_per_point": sorted({int(n) for n in table["n_replicates"]}),
+             "split": "70/30 over design points, sklearn train_test_split(random_state=seed)",
+             "kinds": args.kinds, "seed": args.seed,
              "jar_volume_m3": jar, "params": {k: r.params for k, r in results.items()},
              "bundle_params": bundle.extra}, indent=1, default=str))
         if "lr" in bundle.models:

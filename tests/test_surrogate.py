@@ -123,6 +123,46 @@ def test_twin_table_validation(tmp_path, table):
         sur.load_twin_table(p)
 
 
+def test_replicates_averaged_per_design_point():
+    runs = sur.synthetic_twin_table(n_replicates=3, seed=3)          # 81 runs, 27 points
+    runs = runs.sample(frac=1.0, random_state=1).reset_index(drop=True)   # seeds interleaved
+    avg = sur.average_replicates(runs)
+    assert len(avg) == 27 and (avg["n_replicates"] == 3).all()
+    first_seen = runs.drop_duplicates(["frequency_hz", "ball_diameter_m"])
+    assert np.allclose(avg["frequency_hz"], first_seen["frequency_hz"])      # order kept
+    assert np.allclose(avg["ball_diameter_m"], first_seen["ball_diameter_m"])
+    for _, row in avg.iterrows():
+        reps = runs[np.isclose(runs["frequency_hz"], row["frequency_hz"])
+                    & np.isclose(runs["ball_diameter_m"], row["ball_diameter_m"])]
+        assert len(reps) == 3
+        assert np.isclose(row["v_mean_m_s"], reps["v_mean_m_s"].mean())
+        assert np.isclose(row["f_col_hz"], reps["f_col_hz"].mean())
+        assert np.isclose(row["v_mean_sd_m_s"], reps["v_mean_m_s"].std())
+        assert row["run_id"].split("/") == list(reps["run_id"])
+    # one row per point: unchanged apart from the added columns; idempotent
+    again = sur.average_replicates(avg)
+    pd.testing.assert_frame_equal(again, avg)
+    single = sur.synthetic_twin_table(seed=3)
+    one = sur.average_replicates(single)
+    assert (one["n_replicates"] == 1).all() and one["v_mean_sd_m_s"].isna().all()
+    pd.testing.assert_frame_equal(one[single.columns], single)
+    with pytest.raises(sur.SurrogateInputError, match="n_replicates"):
+        sur.average_replicates(pd.concat([avg, avg.iloc[:1]]))
+
+
+def test_training_on_runs_equals_training_on_means():
+    runs = sur.synthetic_twin_table(n_replicates=3, seed=4)
+    res_runs = sur.train_surrogates(runs, kinds=("lr",), random_state=0)["lr"]
+    res_means = sur.train_surrogates(sur.average_replicates(runs), kinds=("lr",),
+                                     random_state=0)["lr"]
+    pred = res_runs.predictions
+    assert len(pred) == 27 and (pred["n_replicates"] == 3).all()      # split over points
+    assert (pred["split"] == "test").sum() == int(np.ceil(0.3 * 27))
+    pd.testing.assert_frame_equal(pred, res_means.predictions)
+    b = sur.fit_bundle(runs, kinds=("lr",))
+    assert b.n_runs == 81 and b.extra["n_points"] == 27
+
+
 def test_bundle_roundtrip_and_domain_flag(tmp_path, table):
     b = sur.fit_bundle(table, kinds=("lr", "gp"))
     path = b.save(tmp_path / "s.joblib")
