@@ -10,7 +10,7 @@ export PYTHONHASHSEED := 0
 export OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study \
+.PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate
 
 help:
@@ -79,3 +79,7 @@ surrogate: surrogate-runs
 	  --validation-table results/twin_tables/validation_table.csv
 	$(VPY) -m analysis.kinetics --twin-table results/twin_tables/all_runs.csv
 	$(VPY) -m analysis.predict --compare --twin-table results/twin_tables/validation_table.csv
+
+# one Markdown page per study folder in results/ and the index results/README.md
+report: venv
+	$(VPY) -m analysis.report
