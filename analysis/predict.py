@@ -266,7 +266,12 @@ def _run_compare(args) -> Path:
     kfit = load_kinetics(args.kinetics, args.yields)
     twin = (kin.load_twin_energy_table(args.twin_table) if args.twin_table is not None
             else kin.table3_energy_inputs())
-    bundle = load_surrogate(args.surrogate, args.twin_table, kinds=sur.KINDS)
+    # the surrogates under test are the saved ones (trained on the design runs); --twin-table
+    # here holds the twin's outputs at the compared conditions, never training data: training
+    # on it would compare the twin with itself
+    spath = Path(args.surrogate) if args.surrogate is not None else DEFAULT_SURROGATE_PATH
+    bundle = (sur.SurrogateBundle.load(spath) if spath.is_file()
+              else load_surrogate(None, None, kinds=sur.KINDS))
     table = compare_yield_sources(kfit, twin, bundle, ds.conditions, ds.yields)
     summ = summarize_comparison(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
