@@ -11,13 +11,16 @@ export OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
-        bench-dem bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate
+        bench-dem bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
+        signatures hidden-demo bench-hidden
 
 help:
 	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
 	@echo "make test   - the test suite (installs YADE and the venv when missing)"
 	@echo "make bench-dem | bench-tracking | bench-predict | bench-sweep - benchmarks"
-	@echo "make geometry | facet-study | timestep-study - regenerate committed studies"
+	@echo "make hidden-demo - hide an effect in twin data, find it blind, add it -> results/hidden_demo/"
+	@echo "make bench-hidden - the hidden-effect suite (rank-1 rate, decoy, nothing-missing, chi2)"
+	@echo "make geometry | facet-study | timestep-study | signatures - regenerate committed studies"
 
 setup: venv yade
 
@@ -79,6 +82,16 @@ surrogate: surrogate-runs
 	  --validation-table results/twin_tables/validation_table.csv
 	$(VPY) -m analysis.kinetics --twin-table results/twin_tables/all_runs.csv
 	$(VPY) -m analysis.predict --compare --twin-table results/twin_tables/validation_table.csv
+
+# the twin's effect signatures at the calibrated parameters (the diagnose model, issue 6)
+signatures: setup
+	$(VPY) -m analysis.twin_model --build --replicates 2
+
+hidden-demo: setup
+	$(VPY) -m analysis.hidden_demo
+
+bench-hidden: setup
+	$(VPY) -m analysis.hidden_suite --noise-seeds 5
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv

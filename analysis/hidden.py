@@ -46,7 +46,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
                         runs_dir=None, out_dir=None, truth_dir=None,
                         yield_times_min=YIELD_TIMES_MIN, yield_sd_pct=1.0,
                         slope_pct_per_kj=None, intercept_pct=None, progress=True,
-                        twin_seed=None):
+                        twin_seed=None, twin_v_rel_sd=None, twin_f_col_sd_hz=None):
     """Run the twin with ``effects`` at every condition and write a noisy measurement dataset.
 
     Parameters
@@ -62,6 +62,9 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         positions (seeds 1000 seed + k)
     twin_seed : int, optional - seeds the replicate start positions instead (1000 twin_seed + k):
         several noise draws on the same twin runs
+    twin_v_rel_sd, twin_f_col_sd_hz : the twin's replicate scatter of one run (relative for
+        v_mean, 1/s for f_col) when known from elsewhere (needed with ``replicates=1``; default:
+        estimated from the replicates, 0 with one replicate)
     runner : callable, optional - twin runner (default analysis.twin.run_twin)
     yield_times_min : milling times [min] of the yield measurements at every condition (the
         default 2.5-10 min keeps the paper's conditions in the powder regime); () for none
@@ -125,6 +128,10 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     v_rel_rep = (float(np.sqrt(np.nanmean((g["v_mean_m_s"].std() / g["v_mean_m_s"].mean())
                                           ** 2))) if replicates > 1 else 0.0)
     f_rep = float(np.sqrt(np.nanmean(g["f_col_hz"].std() ** 2))) if replicates > 1 else 0.0
+    if twin_v_rel_sd is not None:
+        v_rel_rep = float(twin_v_rel_sd)
+    if twin_f_col_sd_hz is not None:
+        f_rep = float(twin_f_col_sd_hz)
     v_sd = np.hypot(v_rel_sd, v_rel_rep / np.sqrt(replicates)) * v_meas
     f_sd = np.full(len(ids), math.hypot(f_col_sd_hz, f_rep / math.sqrt(replicates)))
     summary = pd.DataFrame({"condition_id": ids, "v_mean_m_s": v_meas, "v_mean_sd_m_s": v_sd,

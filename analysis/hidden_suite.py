@@ -2,7 +2,7 @@
 
 Every case is a hidden-effect dataset (:func:`analysis.hidden.make_hidden_dataset`) made by the
 real twin at the calibrated parameters with one catalog effect switched on (or none), 8 Table-3
-conditions x 2 replicates, plus measurement noise (v 1.5 %, f_col 1 /s, yields 1 percentage
+conditions x 1 run (the twin's scatter is in the reported sd), plus measurement noise (v 1.5 %, f_col 1 /s, yields 1 percentage
 point at 2.5-10 min); several noise seeds per twin data set. Each dataset is diagnosed blind with
 the twin model (:mod:`analysis.twin_model`), the verdict's effect is added, and the outcome is
 scored against the truth:
@@ -120,8 +120,13 @@ def shift_sigma(model, ds, truth):
 
 
 def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, cases=None,
-              runner=None, runs_dir=None, library=None, emulator=None, progress=True):
-    """Make, diagnose and score every case x noise seed; returns the rows table."""
+              runner=None, runs_dir=None, library=None, emulator=None, progress=True,
+              replicates=1):
+    """Make, diagnose and score every case x noise seed; returns the rows table.
+
+    ``replicates`` twin runs per condition (default 1: a measurement is one realisation of the
+    chaotic mill; the twin's scatter, known from the library's anchor, goes into the reported
+    sd)."""
     from tqdm.auto import tqdm
     from analysis.hidden import make_hidden_dataset
     out_dir = Path(out_dir)
@@ -137,6 +142,10 @@ def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, c
     if emulator is None:
         emulator = twin_model.base_emulator()
     model_kwargs = {"library": library, "emulator": emulator}
+    anchor = twin_model.TwinModel(pd.DataFrame(library[1]["conditions"]), {},
+                                  library=library, emulator=emulator)
+    twin_sd = {"twin_v_rel_sd": anchor.v_rel_sd,
+               "twin_f_col_sd_hz": float(np.sqrt(np.mean(anchor.f_col_sd_hz ** 2)))}
     jobs = [(c, s) for c in cases for s in noise_seeds]
     bar = tqdm(jobs, desc="hidden suite", unit="dataset", disable=not progress)
     for (label, spec, true, s), seed in bar:
@@ -144,9 +153,9 @@ def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, c
         if name in done_names:
             continue
         ds_path, truth_path = make_hidden_dataset(
-            name, spec, replicates=2, seed=seed, twin_seed=twin_seed, base_config=theta_ref,
-            runner=runner, workers=workers, runs_dir=runs_dir, out_dir=ds_root / name,
-            truth_dir=out_dir / "truth", progress=False)
+            name, spec, replicates=replicates, seed=seed, twin_seed=twin_seed,
+            base_config=theta_ref, runner=runner, workers=workers, runs_dir=runs_dir,
+            out_dir=ds_root / name, truth_dir=out_dir / "truth", progress=False, **twin_sd)
         row = score_case(ds_path, truth_path, model_kwargs)
         row.update(case=label, noise_seed=seed, strength_true=s)
         done = pd.concat([done, pd.DataFrame([row])], ignore_index=True)
