@@ -82,6 +82,7 @@ surrogate: surrogate-runs
 	  --validation-table results/twin_tables/validation_table.csv
 	$(VPY) -m analysis.kinetics --twin-table results/twin_tables/all_runs.csv
 	$(VPY) -m analysis.predict --compare --twin-table results/twin_tables/validation_table.csv
+	$(VPY) -m analysis.report
 
 # the twin's effect signatures at the calibrated parameters (the diagnose model, issue 6)
 signatures: setup

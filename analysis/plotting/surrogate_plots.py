@@ -37,7 +37,7 @@ def plot_parity(predictions: pd.DataFrame, output: str, ax=None, title: str | No
 
 
 def plot_learning_curve(lc: pd.DataFrame, output: str, ax=None):
-    """Mean absolute % error on the test split vs number of training runs (mean +- sd over
+    """Mean absolute % error on the test split vs number of training design points (mean +- sd over
     repeats), one line per surrogate kind."""
     ax = _ax(ax)
     d = lc[lc["output"] == output]
@@ -45,7 +45,7 @@ def plot_learning_curve(lc: pd.DataFrame, output: str, ax=None):
         s = g.groupby("n_train")["mape_pct"].agg(["mean", "std"])
         ax.errorbar(s.index, s["mean"], yerr=s["std"], marker="o", capsize=3, label=kind.upper())
     ax.set_yscale("log")
-    ax.set_xlabel("training runs")
+    ax.set_xlabel("training design points (each a replicate mean)")
     ax.set_ylabel(f"test MAPE {output} [%]")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3, which="both")
