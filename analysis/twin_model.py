@@ -212,6 +212,7 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
                                           "ball_diameter_mm"]].to_dict("records")}
         (tmp / "library.json").write_text(json.dumps(meta, indent=1))
         plot_library(summ, tmp / "signatures.png")
+        write_page(summ, meta, tmp)
         publish_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -244,6 +245,39 @@ def plot_library(summ, path):
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def write_page(summ, meta, folder):
+    """README.md of the library: what it is, the signatures table, the figure."""
+    cands = {c["name"]: c for c in meta["candidates"]}
+    a = summ[summ["label"] == "none"]
+    rel = 100 * float(np.sqrt(np.nanmean((a["v_sd_m_s"] / a["v_mean_m_s"]) ** 2)))
+    piv = summ.pivot(index="condition_id", columns="label", values="dv_pct")
+    piv = piv.loc[list(a["condition_id"]), [c for c in piv.columns if c != "none"]]
+    lines = ["# Effect signatures of the twin", "",
+             "The twin at the calibrated parameters %s, every DEM catalog effect at the top of "
+             "its diagnose range, %d seeds per condition (the same seeds as the anchor without "
+             "effects). Regenerate with `make signatures` (`analysis/twin_model.py`); used by "
+             "`analysis.twin_model.TwinModel` (diagnose's model), the hidden-effect suite and "
+             "`make hidden-demo`." % (meta["theta_ref"], meta["replicates"]), "",
+             "Replicate scatter of one run's v_mean at the anchor: %.2f %% (pooled over the "
+             "conditions); a difference of two %d-seed means has a standard error of %.2f %%."
+             % (rel, meta["replicates"], rel * math.sqrt(2.0 / meta["replicates"])), "",
+             "Change of v_mean [%] against the anchor:", "",
+             "| condition | " + " | ".join("%s (%s = %g)" % (
+                 c, cands[c]["param"], Candidate(**dict(cands[c], fixed=())).param_value(
+                     cands[c]["s_max"])) for c in piv.columns) + " |",
+             "|---|" + "---|" * len(piv.columns)]
+    for cid, r in piv.iterrows():
+        lines.append("| %s | " % cid + " | ".join("%+.2f" % v for v in r) + " |")
+    df = summ.pivot(index="condition_id", columns="label", values="df_col_hz")
+    lines += ["", "Change of f_col [1/s] (a 0.5 s record counts in steps of 2 /s):", "",
+              "| condition | " + " | ".join(piv.columns) + " |", "|---|" + "---|" * len(piv.columns)]
+    for cid in piv.index:
+        lines.append("| %s | " % cid + " | ".join("%+.1f" % df.loc[cid, c] for c in piv.columns)
+                     + " |")
+    lines += ["", "![signatures](signatures.png)", ""]
+    (Path(folder) / "README.md").write_text("\n".join(lines))
 
 
 def load_library(lib_dir=SIGNATURE_DIR):

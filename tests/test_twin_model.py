@@ -62,6 +62,8 @@ def test_library_has_every_dem_candidate_at_its_signature_strength(fake):
         assert (s.loc[s["label"] == c.name, "strength"] == c.s_max).all()
     assert (s["n"] == 4).all()
     assert (fake["root"] / "lib" / "signatures.png").stat().st_size > 1000
+    page = (fake["root"] / "lib" / "README.md").read_text()
+    assert "jar_compliance (f_n_hz = 81.6" in page and page.count("| f30_d20.6 |") == 2
 
 
 def test_model_reproduces_anchor_and_signatures(fake):
