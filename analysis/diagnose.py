@@ -41,9 +41,13 @@ The method
      the strength with a base parameter; BIC gain ``delta_chi2 - ln n``;
    * identifiability: ``footprint`` = norm of the projected, whitened change of all predictions
      when the strength goes from null to its far bound, minus the part explained by the FD noise
-     of the twin (``2 (1 - crn_correlation) model_se^2``); ``signature_snr`` = footprint / that
-     noise. An effect with footprint < ``min_footprint`` (default 2 sigma) or snr < ``min_snr``
-     (default 3) cannot be told from noise and is never significant.
+     of the twin (``2 (1 - crn_correlation) model_se^2``); ``signature_snr`` = the signature's
+     distance from pure twin noise, a chi-square test of the far-bound change against its own
+     noise entry by entry, ``(T - n) / sqrt(2 n)`` with ``T = sum (change_i / noise_sd_i)^2``
+     (a z-score of the excess; noise that sits in a few observables - the chaotic f_col of one
+     condition - does not drown a clean signal in the others). An effect with footprint <
+     ``min_footprint`` (default 2 sigma) or snr < ``min_snr`` (default 3) cannot be told from
+     noise and is never significant.
 4. Significance: p-value of ``delta_chi2`` under chi2_1 (halved when the null strength sits on a
    bound - the strength can only move one way - Self & Liang 1987), and, to protect against a
    residual that is over-dispersed for another reason, the F-test p-value of
@@ -525,7 +529,15 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         vp = _project_out(J, vfar)
         fp2 = float(vp @ vp)
         footprint = math.sqrt(max(fp2 - proj_noise, 0.0))
-        snr = footprint / math.sqrt(proj_noise) if proj_noise > 0 else math.inf
+        # the signature against its own noise, entry by entry (matched chi-square test)
+        nz = noise_var > 0
+        if nz.any():
+            T = float(np.sum(vfar[nz] ** 2 / noise_var[nz]))
+            snr = (T - nz.sum()) / math.sqrt(2.0 * nz.sum())
+            if (~nz).any() and np.any(vfar[~nz] != 0):
+                snr = math.inf                      # a noise-free entry moved
+        else:
+            snr = math.inf
         gn2, gpn2 = float(gw @ gw), float(gp @ gp)
         U = float(gp @ r)
         if gpn2 > 0:

@@ -113,7 +113,7 @@ CANDIDATES = (
     Candidate("viscoelastic_restitution", "dem", "k", 0.6, "-"),
     Candidate("arc_motion", "dem", "curvature_1_m", 15.0, "1/m"),
     Candidate("jar_compliance", "dem", "f_n_hz", 1.5, "Hz", coord="inv_square", p0=100.0),
-    Candidate("powder_layer", "dem", "layer_thickness_m", 4.0, "m", coord="square",
+    Candidate("powder_layer", "dem", "layer_thickness_m", 1.0, "m", coord="square",
               p0=5e-4),
     Candidate("rolling_resistance", "dem", "extra_rolling_friction", 2.0, "-"),
     Candidate("air_drag", "dem", "drag_scale", 1.0, "-"),

@@ -297,3 +297,25 @@ def test_cli_diagnose_and_add(tmp_path, capsys):
                        "--out", str(tmp_path / "out2")])
     assert rc == 2 and not (tmp_path / "out2").exists()
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_noise_in_a_few_observables_does_not_drown_a_clean_signature():
+    """The identifiability test weighs a signature against its own noise entry by entry: a
+    chaotic f_col at two conditions (model_se 20x the measurement sd there) must not hide a
+    clean speed signature, and a signature made of nothing but that noise stays unidentifiable."""
+    obs, predict, se = make({"ball_spin": 0.8}, seed=5)
+    se = se.copy()
+    loud = [(CONDS["condition_id"][0], "f_col_hz"), (CONDS["condition_id"][5], "f_col_hz")]
+    rng = np.random.default_rng(1)
+    offset = pd.Series(0.0, index=IDX)
+    for k in loud:
+        se[k] = 20 * F_SD
+        offset[k] = 20 * F_SD * rng.standard_normal()
+
+    def noisy(theta, eff):             # the decoy's change is pure noise at the loud keys
+        return predict(theta, eff) + (eff.get(DECOY, 0.0) > 0) * offset
+
+    d = diagnose(noisy, obs, BASE, EFFECTS, model_se=se, conditions=CONDS, crn_correlation=0.0)
+    t = d.table.set_index("effect")
+    assert t.loc["ball_spin", "identifiable"] and d.best == "ball_spin"
+    assert not t.loc[DECOY, "identifiable"]
