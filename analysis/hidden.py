@@ -147,10 +147,14 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
             x = (kin[0].yield_pct(e_kin, f, t_s, slope, intercept) if kin
                  else slope * e_kin * f * t_s / 1000.0 + intercept)
             y_true[cid] = [float(z) for z in np.atleast_1d(x)]
-            for tm, z in zip(yield_times_min, np.atleast_1d(x)):
+            # the twin's own scatter of (v, f_col) carried into E_tot, beside the measurement
+            # noise: the reported sd, as for v_mean and f_col
+            twin_y_sd = (slope * t_s / 1000.0 * np.hypot(m * v * f * v_rel_rep * v,
+                                                         e_kin * f_rep) / math.sqrt(replicates))
+            for tm, z, tsd in zip(yield_times_min, np.atleast_1d(x), twin_y_sd):
                 # a measured yield lies in [0, 100] %
                 z_meas = min(max(float(z) + yield_sd_pct * rng.standard_normal(), 0.0), 100.0)
-                rows.append((cid, float(tm), z_meas, yield_sd_pct))
+                rows.append((cid, float(tm), z_meas, float(math.hypot(yield_sd_pct, tsd))))
         yields = pd.DataFrame(rows, columns=["condition_id", "time_min", "yield_pct",
                                              "yield_sd_pct"])
     meta = {"name": name,

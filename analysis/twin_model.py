@@ -444,8 +444,9 @@ class TwinModel:
         return pd.Series(out, index=self.keys)
 
     def model_se(self, theta=None):
-        """The anchor's standard error per key (pooled relative sd of v_mean, pooled sd of f_col,
-        propagated to the yields through E_kin)."""
+        """The anchor's standard error per key (pooled relative sd of v_mean, per-condition sd of
+        f_col floored by the pooled one, both propagated to the yields through
+        E_tot = m v^2 f_col t / 2)."""
         theta = dict(theta or self.theta_ref)
         theta.setdefault("slope_pct_per_kj", 9.49)
         y = self.dem_outputs(theta)
@@ -453,10 +454,12 @@ class TwinModel:
         for i, cid in enumerate(self.conditions["condition_id"]):
             v, f = y[i]
             v_se = self.v_rel_sd * v / math.sqrt(self.n_rep)
-            out += [v_se, self.f_col_sd_hz[i] / math.sqrt(self.n_rep)]
+            f_se = self.f_col_sd_hz[i] / math.sqrt(self.n_rep)
+            out += [v_se, f_se]
+            m = self.mass_kg[i]
             for t in self.yield_times_min.get(cid, []):
-                out.append(abs(theta["slope_pct_per_kj"]) * self.mass_kg[i] * v * f * t * 60.0
-                           * v_se / 1000.0)
+                out.append(abs(theta["slope_pct_per_kj"]) * t * 60.0 / 1000.0
+                           * math.hypot(m * v * f * v_se, 0.5 * m * v * v * f_se))
         return pd.Series(out, index=self.keys)
 
 

@@ -145,7 +145,7 @@ def blind(fake, spec, seed, name):
 
 @pytest.mark.parametrize("spec,true", [
     ({"temperature_rise": {"thermal_resistance_k_w": 0.8}}, "temperature_rise"),
-    ({"powder_layer": {"layer_thickness_m": 9e-4}}, "powder_layer"),
+    ({"powder_layer": {"layer_thickness_m": 4.5e-4}}, "powder_layer"),
     ({"induction_period": {"induction_energy_j": 1000.0}}, "induction_period"),
 ])
 def test_blind_fake_cases_find_the_hidden_effect(fake, spec, true):
@@ -153,7 +153,7 @@ def test_blind_fake_cases_find_the_hidden_effect(fake, spec, true):
     assert row["shift_sigma_max"] >= 3
     assert row["rank1"] == true and row["reported"] == true
     assert not row["decoy_significant"]
-    assert row["chi2_dof_after_add"] <= 1.5 < row["chi2_dof_calibrated"]
+    assert row["chi2_dof_after_add"] <= 1.5 and row["chi2_dof_after_add"] < row["chi2_dof_calibrated"]
 
 
 def test_blind_fake_null_says_nothing_missing(fake):
@@ -182,18 +182,18 @@ def test_suite_resumes_and_summarises(fake, tmp_path):
 
 def test_hidden_demo_end_to_end_on_the_fake(fake, tmp_path):
     from analysis import hidden_demo
-    spec = {"powder_layer": {"layer_thickness_m": 9e-4}}
+    spec = {"induction_period": {"induction_energy_j": 1000.0}}
     out = hidden_demo.run_demo(tmp_path / "demo", effect_spec=spec, workers=1,
                                runner=run_fake_twin, runs_dir=fake["root"] / "runs",
                                library=fake["library"], emulator=fake["emulator"],
                                say=lambda *a: None)
-    assert out["reveal"]["found"] and out["reveal"]["hidden_effect"] == "powder_layer"
+    assert out["reveal"]["found"] and out["reveal"]["hidden_effect"] == "induction_period", out["verdict"]
     stair = pd.read_csv(tmp_path / "demo" / "staircase.csv")
     assert stair["chi2_dof"].iloc[1] > 3 * stair["chi2_dof"].iloc[2]
     assert stair["stage"].iloc[-1].endswith("(twin rerun)")
     assert stair["chi2_dof"].iloc[-1] < stair["chi2_dof"].iloc[1]
     page = (tmp_path / "demo" / "report.md").read_text()
-    assert "powder_layer" in page and "Reveal" in page
+    assert "induction_period" in page and "Reveal" in page
     # the sealed truth lives outside the dataset folder
     assert not list((tmp_path / "demo" / "dataset").glob("*truth*"))
 
