@@ -462,7 +462,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
              conditions: pd.DataFrame | None = None, alpha: float = 0.01,
              min_footprint: float = 2.0, min_snr: float = 3.0,
              effect_step_frac: float = 0.25, base_step_frac: float = 1e-3,
-             structure: bool = True) -> Diagnosis:
+             structure: bool = True, noise_observables=None) -> Diagnosis:
     """Rank candidate effects by how well each explains the residual after calibration.
 
     Parameters
@@ -498,6 +498,12 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         FD step for the base-parameter Jacobian, fraction of each parameter's range
     structure : bool
         run the residual-structure tests
+    noise_observables : set of str or None
+        observables whose twin noise is independent draws (e.g. {'v_mean_m_s', 'f_col_hz'});
+        the identifiability chi-square counts only these (derived observables such as yields,
+        computed from the same draws, would count the same noise several times). None: all.
+        A 'kinetics' effect acts after the twin, on the same draws: its signature carries no
+        twin noise.
 
     Returns
     -------
@@ -516,6 +522,9 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     K = len(prob.effects)
     noise_var = 2.0 * (1.0 - crn_correlation) * (prob.model_se / prob.sigma) ** 2
     proj_noise = float(np.sum(noise_var)) * max(n - p, 1) / n
+    obs_names = np.asarray(prob.keys.get_level_values(1))
+    indep = (np.ones(n, bool) if noise_observables is None
+             else np.isin(obs_names, list(noise_observables)))
 
     rows, fits, sigs = [], {}, {}
     for name, e in prob.effects.items():
@@ -529,15 +538,21 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         vp = _project_out(J, vfar)
         fp2 = float(vp @ vp)
         footprint = math.sqrt(max(fp2 - proj_noise, 0.0))
-        # the signature against its own noise, entry by entry (matched chi-square test)
-        nz = noise_var > 0
-        if nz.any():
-            T = float(np.sum(vfar[nz] ** 2 / noise_var[nz]))
-            snr = (T - nz.sum()) / math.sqrt(2.0 * nz.sum())
-            if (~nz).any() and np.any(vfar[~nz] != 0):
-                snr = math.inf                      # a noise-free entry moved
+        # the signature against its own noise, entry by entry (matched chi-square test over
+        # the independently drawn observables); a kinetics effect's change carries no noise
+        if e.kind == "kinetics":
+            footprint = math.sqrt(fp2)
+            snr = math.inf if fp2 > 0 else 0.0
         else:
-            snr = math.inf
+            nz = (noise_var > 0) & indep
+            free = (noise_var == 0) & indep
+            if free.any() and np.any(vfar[free] != 0):
+                snr = math.inf                      # a noise-free entry moved
+            elif nz.any():
+                T = float(np.sum(vfar[nz] ** 2 / noise_var[nz]))
+                snr = (T - nz.sum()) / math.sqrt(2.0 * nz.sum())
+            else:
+                snr = 0.0
         gn2, gpn2 = float(gw @ gw), float(gp @ gp)
         U = float(gp @ r)
         if gpn2 > 0:
@@ -870,14 +885,15 @@ def main(argv=None):
     try:
         ds = load_dataset(args.dataset)
         problem = _load_model_factory(args.model)(ds)
-        kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects")
-              if k in problem}
+        kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects",
+                                      "noise_observables") if k in problem}
         diag = diagnose(problem["predict"], ds, problem["base_params"], problem["effects"],
                         alpha=args.alpha, **kw)
         added = None
         name = diag.best if args.add == "best" else args.add
         if name:
             kw.pop("crn_correlation", None)
+            kw.pop("noise_observables", None)
             added = add_effect(problem["predict"], ds, problem["base_params"],
                                problem["effects"], name, **kw)
         write_diagnosis(diag, args.out, added, ds.name)

@@ -149,7 +149,8 @@ def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, workers=2, re
 
     say("3/5 diagnose: which catalog effect explains the misfit?")
     diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
-                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"])
+                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    noise_observables=prob["noise_observables"])
     say("   " + diag.verdict)
     added = None
     if diag.best:

@@ -65,6 +65,7 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
     t0 = time.perf_counter()
     diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
                     model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    noise_observables=prob["noise_observables"],
                     alpha=alpha)
     true = [k for k in truth["effects"]]
     true = true[0] if true else None

@@ -476,7 +476,8 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
     m = TwinModel(dataset.conditions, yield_times_of(dataset), library=library,
                   emulator=emulator, base=base)
     return {"predict": m.predict, "base_params": m.base_params(), "effects": m.effects(),
-            "model_se": m.model_se(), "crn_correlation": 0.0, "model": m}
+            "model_se": m.model_se(), "crn_correlation": 0.0,
+            "noise_observables": {"v_mean_m_s", "f_col_hz"}, "model": m}
 
 
 def main(argv=None):

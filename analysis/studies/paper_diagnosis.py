@@ -38,7 +38,8 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
     prob = twin_model.factory(ds)
     model = prob["model"]
     diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
-                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"])
+                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    noise_observables=prob["noise_observables"])
     say(diag.verdict)
     name = add or diag.best
     added = None
