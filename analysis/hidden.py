@@ -63,8 +63,9 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     twin_seed : int, optional - seeds the replicate start positions instead (1000 twin_seed + k):
         several noise draws on the same twin runs
     twin_v_rel_sd, twin_f_col_sd_hz : the twin's replicate scatter of one run (relative for
-        v_mean, 1/s for f_col) when known from elsewhere (needed with ``replicates=1``; default:
-        estimated from the replicates, 0 with one replicate)
+        v_mean, 1/s for f_col), a number or a dict per condition_id, when known from elsewhere
+        (needed with ``replicates=1``; default: estimated from the replicates, pooled over the
+        conditions; 0 with one replicate)
     runner : callable, optional - twin runner (default analysis.twin.run_twin)
     yield_times_min : milling times [min] of the yield measurements at every condition (the
         default 2.5-10 min keeps the paper's conditions in the powder regime); () for none
@@ -128,19 +129,17 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     v_rel_rep = (float(np.sqrt(np.nanmean((g["v_mean_m_s"].std() / g["v_mean_m_s"].mean())
                                           ** 2))) if replicates > 1 else 0.0)
     f_rep = float(np.sqrt(np.nanmean(g["f_col_hz"].std() ** 2))) if replicates > 1 else 0.0
-    if twin_v_rel_sd is not None:
-        v_rel_rep = float(twin_v_rel_sd)
-    if twin_f_col_sd_hz is not None:
-        f_rep = float(twin_f_col_sd_hz)
+    v_rel_rep = _per_condition(twin_v_rel_sd, v_rel_rep, ids, "twin_v_rel_sd")
+    f_rep = _per_condition(twin_f_col_sd_hz, f_rep, ids, "twin_f_col_sd_hz")
     v_sd = np.hypot(v_rel_sd, v_rel_rep / np.sqrt(replicates)) * v_meas
-    f_sd = np.full(len(ids), math.hypot(f_col_sd_hz, f_rep / math.sqrt(replicates)))
+    f_sd = np.hypot(f_col_sd_hz, f_rep / np.sqrt(replicates))
     summary = pd.DataFrame({"condition_id": ids, "v_mean_m_s": v_meas, "v_mean_sd_m_s": v_sd,
                             "f_col_hz": f_meas, "f_col_sd_hz": f_sd})
     yields, y_true = None, {}
     if len(yield_times_min):
         cond_by_id = conditions.set_index("condition_id")
         rows = []
-        for cid, v, f in zip(ids, v_true, f_true):
+        for i, (cid, v, f) in enumerate(zip(ids, v_true, f_true)):
             m = kinetics.ball_mass_kg(float(cond_by_id.loc[cid, "ball_diameter_mm"]) * 1e-3)
             e_kin = 0.5 * m * v * v
             t_s = np.asarray(yield_times_min, float) * 60.0
@@ -149,8 +148,8 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
             y_true[cid] = [float(z) for z in np.atleast_1d(x)]
             # the twin's own scatter of (v, f_col) carried into E_tot, beside the measurement
             # noise: the reported sd, as for v_mean and f_col
-            twin_y_sd = (slope * t_s / 1000.0 * np.hypot(m * v * f * v_rel_rep * v,
-                                                         e_kin * f_rep) / math.sqrt(replicates))
+            twin_y_sd = (slope * t_s / 1000.0 * np.hypot(m * v * f * v_rel_rep[i] * v,
+                                                         e_kin * f_rep[i]) / math.sqrt(replicates))
             for tm, z, tsd in zip(yield_times_min, np.atleast_1d(x), twin_y_sd):
                 # a measured yield lies in [0, 100] %
                 z_meas = min(max(float(z) + yield_sd_pct * rng.standard_normal(), 0.0), 100.0)
@@ -170,8 +169,9 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     truth = {"name": name, "effects": effects, "base_config": base, "replicates": replicates,
              "noise": {"v_rel_sd": v_rel_sd, "f_col_sd_hz": f_col_sd_hz, "seed": seed,
                        "twin_seed": seed if twin_seed is None else twin_seed,
-                       "yield_sd_pct": yield_sd_pct, "twin_v_rel_sd": v_rel_rep,
-                       "twin_f_col_sd_hz": f_rep},
+                       "yield_sd_pct": yield_sd_pct,
+                       "twin_v_rel_sd": dict(zip(ids, map(float, v_rel_rep))),
+                       "twin_f_col_sd_hz": dict(zip(ids, map(float, f_rep)))},
              "kinetics": {"slope_pct_per_kj": slope, "intercept_pct": intercept,
                           "yield_times_min": list(yield_times_min), "yields_true": y_true},
              "twin_means": {cid: {"v_mean_m_s": float(v), "f_col_hz": float(f)}
@@ -184,6 +184,18 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     tmp.write_text(json.dumps(truth, indent=1))
     tmp.replace(truth_path)
     return ds_path, truth_path
+
+
+def _per_condition(given, estimated, ids, what):
+    """An array over ``ids`` from a number, a dict per condition_id or (None) ``estimated``."""
+    if given is None:
+        return np.full(len(ids), float(estimated))
+    if isinstance(given, dict):
+        missing = [c for c in ids if c not in given]
+        if missing:
+            raise ValueError("%s: no value for condition(s) %s" % (what, missing))
+        return np.array([float(given[c]) for c in ids])
+    return np.full(len(ids), float(given))
 
 
 def main(argv=None):

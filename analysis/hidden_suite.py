@@ -165,8 +165,7 @@ def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, c
     model_kwargs = {"library": library, "emulator": emulator}
     anchor = twin_model.TwinModel(pd.DataFrame(library[1]["conditions"]), {},
                                   library=library, emulator=emulator)
-    twin_sd = {"twin_v_rel_sd": anchor.v_rel_sd,
-               "twin_f_col_sd_hz": float(np.sqrt(np.mean(anchor.f_col_sd_hz ** 2)))}
+    twin_sd = anchor.twin_scatter()
     jobs = [(c, s) for c in cases for s in noise_seeds]
     bar = tqdm(jobs, desc="hidden suite", unit="dataset", disable=not progress)
     for (label, spec, true, s), seed in bar:

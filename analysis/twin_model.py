@@ -49,6 +49,8 @@ SIGNATURE_DIR = RESULTS_DIR / "signatures"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"
 OUTPUTS = ("v_mean_m_s", "f_col_hz")
 STEEL_DENSITY_KG_M3 = 7800.0  # analysis.kinetics.STEEL_DENSITY_KG_M3 (checked in the tests)
+V_REL_SD_FLOOR = 0.0025       # smallest replicate sd of one run's v_mean (relative)
+F_COL_SD_FLOOR_HZ = 1.0       # smallest replicate sd of one run's f_col [1/s]
 
 
 @dataclass(frozen=True)
@@ -334,12 +336,18 @@ class TwinModel:
         a = summ[summ["label"] == "none"].set_index("condition_id").loc[cids]
         self.anchor = a[["v_mean_m_s", "f_col_hz"]].to_numpy(float)       # (n_cond, 2)
         self.n_rep = float(a["n"].min())
-        rel = (a["v_sd_m_s"] / a["v_mean_m_s"]).to_numpy(float)
-        self.v_rel_sd = float(np.sqrt(np.nanmean(rel ** 2)))
-        # f_col: the count over a 0.5 s record is 2f in most runs but a run with re-contacts
-        # counts more (44 vs 56 /s seen at 22.5 Hz): per-condition sd, floored by the pooled one
-        f_sd = a["f_col_sd_hz"].to_numpy(float)
-        self.f_col_sd_hz = np.fmax(np.nan_to_num(f_sd), float(np.sqrt(np.nanmean(f_sd ** 2))))
+        # the twin's scatter of one run, per condition: heteroscedastic (0.1-0.3 % for the
+        # 20.6 mm ball, 0.6-1.3 % for the 17.5 mm one), so pooled over every library label (each
+        # label's seeds scatter alike; 2 seeds x 7 labels) rather than over the conditions;
+        # floors: 0.25 % of v_mean and 1 /s of f_col (a 0.5 s record counts in steps of 2 /s)
+        g = summ.groupby("condition_id")
+        rel = (summ["v_sd_m_s"] / summ["v_mean_m_s"]) ** 2
+        self.v_rel_sd_cond = np.fmax(np.sqrt(rel.groupby(summ["condition_id"]).mean()
+                                             .loc[cids].to_numpy(float)), V_REL_SD_FLOOR)
+        self.v_rel_sd = float(np.sqrt(np.mean(self.v_rel_sd_cond ** 2)))
+        f_var = (summ["f_col_sd_hz"] ** 2).groupby(summ["condition_id"]).mean()
+        self.f_col_sd_hz = np.fmax(np.sqrt(f_var.loc[cids].to_numpy(float)), F_COL_SD_FLOOR_HZ)
+        del g
         self.sig = {}
         for c in CANDIDATES:
             if c.kind != "dem":
@@ -371,6 +379,13 @@ class TwinModel:
         X["frequency_hz"] = c["frequency_hz"].to_numpy(float)
         X["ball_diameter_m"] = c["ball_diameter_mm"].to_numpy(float) * 1e-3
         return X
+
+    def twin_scatter(self):
+        """{'twin_v_rel_sd': {cid: ..}, 'twin_f_col_sd_hz': {cid: ..}}: one run's scatter per
+        condition, for :func:`analysis.hidden.make_hidden_dataset`."""
+        cids = list(self.conditions["condition_id"])
+        return {"twin_v_rel_sd": dict(zip(cids, map(float, self.v_rel_sd_cond))),
+                "twin_f_col_sd_hz": dict(zip(cids, map(float, self.f_col_sd_hz)))}
 
     @property
     def has_yields(self):
@@ -453,7 +468,7 @@ class TwinModel:
         out = []
         for i, cid in enumerate(self.conditions["condition_id"]):
             v, f = y[i]
-            v_se = self.v_rel_sd * v / math.sqrt(self.n_rep)
+            v_se = self.v_rel_sd_cond[i] * v / math.sqrt(self.n_rep)
             f_se = self.f_col_sd_hz[i] / math.sqrt(self.n_rep)
             out += [v_se, f_se]
             m = self.mass_kg[i]

@@ -145,7 +145,6 @@ def blind(fake, spec, seed, name):
 
 @pytest.mark.parametrize("spec,true", [
     ({"temperature_rise": {"thermal_resistance_k_w": 0.8}}, "temperature_rise"),
-    ({"powder_layer": {"layer_thickness_m": 4.5e-4}}, "powder_layer"),
     ({"induction_period": {"induction_energy_j": 1000.0}}, "induction_period"),
 ])
 def test_blind_fake_cases_find_the_hidden_effect(fake, spec, true):
