@@ -5,7 +5,8 @@ run costs ~20 s, so the whole catalog on 8 conditions cannot be run inside a fit
 an emulator assembled from real twin runs, each part justified by what the twin does:
 
 * **anchor**: the twin at the reference parameters ``theta_ref`` (the issue-4 calibration's
-  posterior mean), every effect off, ``replicates`` seeds per condition - its per-condition means
+  posterior mean), every effect off, 4 seeds per condition (2 were too few: f_col has heavy
+  tails - both of two seeds chattered at 30 Hz, 20.6 mm) - its per-condition means
   carry the twin's own structure (ball-size dependence, f_col quantisation) exactly;
 * **base parameters** (restitution C_R and jar amplitude A by default): the change from
   ``theta_ref`` is the GP emulator of the calibration (:mod:`analysis.emulator`, trained on the
@@ -144,16 +145,19 @@ def reference_parameters(calibration_dir=CALIBRATION_DIR):
 
 # --------------------------------------------------------------------------- the library
 
-def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None):
+def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None,
+                    anchor_replicates=None):
     """(label, effect, strength, condition_id, config) rows of the signature library: the anchor
-    (label 'none') and every DEM candidate at its signature strength, same seeds."""
+    (label 'none', ``anchor_replicates`` seeds, default ``replicates``) and every DEM candidate
+    at its signature strength (the first ``replicates`` of the same seeds)."""
     rows = []
     variants = [("none", None, 0.0, None)]
     variants += [(c.name, c.name, c.s_max, c.spec(c.s_max)) for c in CANDIDATES
                  if c.kind == "dem"]
     for label, eff, s, spec in variants:
+        n_seeds = (anchor_replicates or replicates) if label == "none" else replicates
         for cnd in conditions.itertuples():
-            for k in range(replicates):
+            for k in range(n_seeds):
                 cfg = dict(base or {}, **theta_ref)
                 cfg.update(frequency_hz=float(cnd.frequency_hz),
                            ball_diameter_m=float(cnd.ball_diameter_mm) * 1e-3,
@@ -178,7 +182,7 @@ def summarise_library(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None, runner=None,
-                  conditions=None, theta_ref=None, base=None):
+                  conditions=None, theta_ref=None, base=None, anchor_replicates=4):
     """Run (cached) and write the signature library: signature_runs.csv, signatures.csv,
     signatures.png, library.json. Returns the summary table."""
     from analysis.atomic_dir import publish_dir, staging_dir
@@ -189,7 +193,8 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
     if conditions is None:
         conditions = load_dataset(PAPER_TABLE3_DIR).conditions
     theta_ref = dict(theta_ref or reference_parameters())
-    rows = library_configs(conditions, theta_ref, replicates=replicates, base=base)
+    rows = library_configs(conditions, theta_ref, replicates=replicates, base=base,
+                           anchor_replicates=max(anchor_replicates or 0, replicates))
     res = run_sweep([r[4] for r in rows], runner=runner, workers=workers, runs_dir=runs_dir)
     if not res.ok:
         raise RuntimeError("signature library: %d twin run(s) failed:\n%s"
@@ -208,7 +213,9 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
     try:
         runs.to_csv(tmp / "signature_runs.csv", index=False)
         summ.to_csv(tmp / "signatures.csv", index=False)
-        meta = {"theta_ref": theta_ref, "replicates": replicates, "base_config": base or {},
+        meta = {"theta_ref": theta_ref, "replicates": replicates,
+                "anchor_replicates": max(anchor_replicates or 0, replicates),
+                "base_config": base or {},
                 "candidates": [c.__dict__ | {"fixed": dict(c.fixed)} for c in CANDIDATES],
                 "conditions": conditions[["condition_id", "frequency_hz",
                                           "ball_diameter_mm"]].to_dict("records")}
@@ -335,18 +342,26 @@ class TwinModel:
             raise ValueError("the signature library has no runs at condition(s) %s" % missing)
         a = summ[summ["label"] == "none"].set_index("condition_id").loc[cids]
         self.anchor = a[["v_mean_m_s", "f_col_hz"]].to_numpy(float)       # (n_cond, 2)
-        self.n_rep = float(a["n"].min())
+        # standard errors as for a 2-seed mean (the signatures' seeds): the anchor's own se is
+        # then overstated by sqrt(2), a signature's difference noise by 15 % - both conservative
+        self.n_rep = float(summ["n"].min())
         # the twin's scatter of one run, per condition: heteroscedastic (0.1-0.3 % for the
         # 20.6 mm ball, 0.6-1.3 % for the 17.5 mm one), so pooled over every library label (each
         # label's seeds scatter alike; 2 seeds x 7 labels) rather than over the conditions;
         # floors: 0.25 % of v_mean and 1 /s of f_col (a 0.5 s record counts in steps of 2 /s)
         g = summ.groupby("condition_id")
         rel = (summ["v_sd_m_s"] / summ["v_mean_m_s"]) ** 2
-        self.v_rel_sd_cond = np.fmax(np.sqrt(rel.groupby(summ["condition_id"]).mean()
-                                             .loc[cids].to_numpy(float)), V_REL_SD_FLOOR)
+        # ... and never below the anchor's own scatter there (f_col has heavy tails: one anchor
+        # seed with a chatter episode counts 74 /s where the others count 60)
+        own_v = np.nan_to_num((a["v_sd_m_s"] / a["v_mean_m_s"]).to_numpy(float))
+        own_f = np.nan_to_num(a["f_col_sd_hz"].to_numpy(float))
+        self.v_rel_sd_cond = np.fmax.reduce([np.sqrt(rel.groupby(summ["condition_id"]).mean()
+                                                     .loc[cids].to_numpy(float)), own_v,
+                                             np.full(len(cids), V_REL_SD_FLOOR)])
         self.v_rel_sd = float(np.sqrt(np.mean(self.v_rel_sd_cond ** 2)))
         f_var = (summ["f_col_sd_hz"] ** 2).groupby(summ["condition_id"]).mean()
-        self.f_col_sd_hz = np.fmax(np.sqrt(f_var.loc[cids].to_numpy(float)), F_COL_SD_FLOOR_HZ)
+        self.f_col_sd_hz = np.fmax.reduce([np.sqrt(f_var.loc[cids].to_numpy(float)), own_f,
+                                           np.full(len(cids), F_COL_SD_FLOOR_HZ)])
         del g
         self.sig = {}
         for c in CANDIDATES:
