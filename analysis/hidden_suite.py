@@ -285,7 +285,9 @@ def write_report(rows, out_dir=SUITE_DIR):
              "| median time per diagnosis + add | %.1f s | |"
              % summ["median_seconds_per_diagnosis"], "",
              "## Per case", "", pe.to_markdown(index=False, floatfmt=".3g")
-             if hasattr(pe, "to_markdown") and _has_tabulate() else pe.to_string(index=False),
+             if hasattr(pe, "to_markdown") and _has_tabulate()
+             else "```\n" + pe.to_string(index=False, float_format=lambda x: "%.3g" % x)
+             + "\n```",
              "", "![confusion](confusion.png)", ""]
     (out_dir / "README.md").write_text("\n".join(lines))
     return summ

@@ -14,8 +14,11 @@ from analysis.hidden_suite import score_case
 
 pytestmark = [pytest.mark.yade, pytest.mark.slow]
 
-# the hidden effect: 75 % of the arm curvature's diagnose range (a 9 cm swing arm)
-HIDDEN = {"arc_motion": {"curvature_1_m": 11.25}}
+# the hidden effect: an induction period of 1100 J (73 % of its diagnose range) acting on the
+# yields of the twin's runs. Of the DEM effects none is found reliably at physical strengths
+# against 1.5 % measurement noise (results/hidden_suite/README.md: arc motion at 70 % of its
+# range is found 2 times in 5), so a blind DEM case would test luck, not the loop.
+HIDDEN = {"induction_period": {"induction_energy_j": 1100.0}}
 
 
 def test_blind_hidden_effect_is_found_on_the_real_twin(tmp_path):
