@@ -9,7 +9,7 @@ the calibrated twin's. With no significant effect it says so and describes the r
     python -m analysis.studies.paper_diagnosis [--add EFFECT] [--replicates 2] [--workers 2]
 
 Writes results/paper_diagnosis/: diagnose/ (ranking, verdict), table3_with_effect.csv,
-report.md.
+README.md.
 """
 from __future__ import annotations
 
@@ -112,7 +112,7 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
                       % (name, summary["mean_abs_v_err_with_effect_pct"],
                          summary["max_abs_v_err_with_effect_pct"]))
     lines.append("")
-    (tmp / "report.md").write_text("\n".join(lines))
+    (tmp / "README.md").write_text("\n".join(lines))
     if out_dir.exists():
         shutil.rmtree(out_dir)
     tmp.rename(out_dir)
