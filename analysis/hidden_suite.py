@@ -98,7 +98,6 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
 def shift_sigma(model, ds, truth):
     """Largest |truth - twin without the effect| / sd over the observables: the hidden effect's
     size in units of the dataset's noise (the twin without it = the model at theta_ref)."""
-    from analysis import kinetics
     theta = dict(model.theta_ref, slope_pct_per_kj=truth["kinetics"]["slope_pct_per_kj"],
                  intercept_pct=truth["kinetics"]["intercept_pct"])
     base = model.predict(theta, {})
@@ -117,7 +116,6 @@ def shift_sigma(model, ds, truth):
         for t, y in zip(times, truth["kinetics"]["yields_true"].get(cid, [])):
             k = (cid, "yield_pct@%gmin" % t)
             out = max(out, abs(y - base[k]) / sd[k])
-    del kinetics
     return out
 
 

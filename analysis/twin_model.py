@@ -349,7 +349,6 @@ class TwinModel:
         # 20.6 mm ball, 0.6-1.3 % for the 17.5 mm one), so pooled over every library label (each
         # label's seeds scatter alike; 2 seeds x 7 labels) rather than over the conditions;
         # floors: 0.25 % of v_mean and 1 /s of f_col (a 0.5 s record counts in steps of 2 /s)
-        g = summ.groupby("condition_id")
         rel = (summ["v_sd_m_s"] / summ["v_mean_m_s"]) ** 2
         # ... and never below the anchor's own scatter there (f_col has heavy tails: one anchor
         # seed with a chatter episode counts 74 /s where the others count 60)
@@ -362,7 +361,6 @@ class TwinModel:
         f_var = (summ["f_col_sd_hz"] ** 2).groupby(summ["condition_id"]).mean()
         self.f_col_sd_hz = np.fmax.reduce([np.sqrt(f_var.loc[cids].to_numpy(float)), own_f,
                                            np.full(len(cids), F_COL_SD_FLOOR_HZ)])
-        del g
         self.sig = {}
         for c in CANDIDATES:
             if c.kind != "dem":

@@ -19,7 +19,6 @@ import shutil
 import sys
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
