@@ -1,8 +1,6 @@
 """The twin model for diagnose (analysis.twin_model), the hidden suite and the hidden demo, on
 the FAKE analytic twin (its toy effect responses, analysis.fake_twin.toy_effect_factor): the
 assembly of anchor + GP difference + signatures, the kinetics, and the blind loop end to end."""
-import json
-import math
 
 import numpy as np
 import pandas as pd
@@ -12,7 +10,6 @@ from analysis import kinetics, twin_model
 from analysis.calibrate import condition_configs
 from analysis.emulator import GPEmulator
 from analysis.fake_twin import run_fake_twin, simulate_fake
-from analysis.measurements import load_dataset
 
 THETA = {"restitution": 0.35, "static_friction": 0.45, "rolling_friction": 0.25,
          "amplitude_m": 0.0127}
