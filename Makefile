@@ -92,7 +92,7 @@ hidden-demo: setup
 	$(VPY) -m analysis.hidden_demo
 
 bench-hidden: setup
-	$(VPY) -m analysis.hidden_suite --noise-seeds 5
+	$(VPY) -m analysis.hidden_suite --noise-seeds 5 --fresh
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv
