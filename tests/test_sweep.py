@@ -61,6 +61,12 @@ def test_duplicate_configs_run_once(tmp_path):
     assert sum(_exec_counts(log).values()) == 2
 
 
+def _complete(runs):
+    """Names of complete run folders (a run killed before its rename leaves a '.tmp-*' folder,
+    which is not a finished run)."""
+    return {p.parent.name for p in runs.glob("*/meta.json") if not p.parent.name.startswith(".")}
+
+
 def test_killed_sweep_resumes_without_recomputing(tmp_path):
     log, runs = tmp_path / "exec", tmp_path / "runs"
     cfgs = _configs(10)
@@ -71,17 +77,17 @@ def test_killed_sweep_resumes_without_recomputing(tmp_path):
     proc = subprocess.Popen(cmd, cwd=REPO_ROOT, start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     t_end = time.time() + 60
-    while time.time() < t_end and len(list(runs.glob("*/meta.json"))) < 3:
+    while time.time() < t_end and len(_complete(runs)) < 3:
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
-    finished = {p.parent.name for p in runs.glob("*/meta.json")}
+    finished = _complete(runs)
     assert 3 <= len(finished) < 10, "the sweep must be killed mid-way"
     before = _exec_counts(log)
     res = sweep.run_sweep(cfgs, runner=RUNNER, workers=2, runs_dir=runs, progress=False,
                           runner_kwargs={"exec_log": str(log)})
     after = _exec_counts(log)
-    assert res.ok and len(list(runs.glob("*/meta.json"))) == 10
+    assert res.ok and len(_complete(runs)) == 10
     for rid in finished:                        # finished runs were never re-executed
         assert after[rid] == before[rid] == 1
     assert res.n_executed == 10 - len(finished)
