@@ -105,10 +105,32 @@ def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept,
     return pd.DataFrame(rows)
 
 
-def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, workers=2, replicates=2,
-             noise_seed=11, verify=True, runner=None, runs_dir=None, library=None,
-             emulator=None, say=print):
-    """The whole loop; returns a dict of its figures (also written to summary.json)."""
+def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, say=print, **kw):
+    """The whole loop; returns a dict of its figures (also written to summary.json).
+
+    Everything is written to a staging folder beside ``out_dir`` and moved onto it at the end, so
+    a failed run (bad effect, failed twin run) leaves the previous demo untouched. Keywords:
+    workers, replicates, noise_seed, verify, runner, runs_dir, library, emulator."""
+    from effects import load_effects
+    from analysis.atomic_dir import publish_dir, staging_dir
+    if effect_spec is not None:
+        load_effects(effect_spec)            # unknown effect / parameter: fail before any work
+    final = Path(out_dir)
+    work = staging_dir(final)
+    try:
+        summary = _run_demo(work, secret_seed=secret_seed, effect_spec=effect_spec, say=say,
+                            **kw)
+        publish_dir(work, final)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    say("wrote %s/report.md (%.0f s)" % (final, summary["times"]["total_s"]))
+    return summary
+
+
+def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates=2,
+              noise_seed=11, verify=True, runner=None, runs_dir=None, library=None,
+              emulator=None, say=print):
     from analysis.compare import compare, write_report as write_compare
     from analysis.diagnose import add_effect, diagnose, write_diagnosis
     from analysis.hidden import make_hidden_dataset
@@ -120,9 +142,6 @@ def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, workers=2, re
 
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True)
     library = library or twin_model.load_library()
     theta_ref = dict(library[1]["theta_ref"])
     if effect_spec is None:
@@ -221,7 +240,6 @@ def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, workers=2, re
     say("   hidden: %s %s (strength %.3g); reported: %s -> %s"
         % (true_name, truth["effects"].get(true_name), true_s, diag.best,
            "FOUND" if reveal["found"] else "NOT FOUND"))
-    say("wrote %s/report.md (%.0f s)" % (out_dir, times["total_s"]))
     return summary
 
 

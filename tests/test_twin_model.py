@@ -203,3 +203,14 @@ def test_secret_choice_is_never_the_decoy():
 def hidden_demo_choice(seed):
     from analysis.hidden_demo import secret_choice
     return secret_choice(seed)
+
+
+def test_hidden_demo_bad_effect_leaves_the_previous_demo(tmp_path, capsys):
+    from analysis import hidden_demo
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "report.md").write_text("previous")
+    assert hidden_demo.main(["--effect", "no_such:x=1", "--out", str(out), "--no-verify"]) == 2
+    assert "unknown effect" in capsys.readouterr().err
+    assert (out / "report.md").read_text() == "previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["demo"]      # no staging folder left
