@@ -501,11 +501,53 @@ def page_studies(f: StudyFolder):
                                  "machinery on an analytic FAKE twin with synthetic "
                                  "measurements, not the real twin."), "",
                 md_table(["parameter", "95 % intervals holding the truth", "trials"], crow), ""]
+    out += _sensitivity_section(f)
     meshes = sorted((f.path / "meshes").glob("*.stl")) if (f.path / "meshes").is_dir() else []
     if meshes:
         out += ["Meshes of the facet study: " + ", ".join(
             f"[{m.name}](meshes/{m.name})" for m in meshes) + ".", ""]
     return out, head
+
+
+def _sensitivity_section(f: StudyFolder):
+    """The paper's Figure 8 on the real twin and the Sobol indices (results/studies/sensitivity,
+    written by ``python -m analysis.sensitivity``), when present."""
+    d = f.path / "sensitivity"
+    if not (d / "figure8_grid.csv").is_file():
+        return []
+    sub = StudyFolder(d)
+    num = ["restitution", "static_friction", "rolling_friction", "v_mean_m_s_mean",
+           "v_mean_m_s_sd", "n_ok", "tol_m_s"]
+    grid = sub.csv("figure8_grid.csv", num + ["matches"], numeric=num)
+    sob = (sub.csv("sobol_v_mean.csv", ["parameter", "S1", "S1_conf", "ST", "ST_conf"],
+                   numeric=["S1", "S1_conf", "ST", "ST_conf"])
+           if (d / "sobol_v_mean.csv").is_file() else None)
+    loo = (sub.csv("emulator_loo.csv", ["output", "rel_rmse_pct", "coverage95"],
+                   numeric=["rel_rmse_pct", "coverage95"])
+           if (d / "emulator_loo.csv").is_file() else None)
+    sub.require()
+    m = grid[grid["matches"].astype(str).str.lower() == "true"]
+    out = ["## Sensitivity: the paper's Figure 8 on the twin", "",
+           f"{len(grid)} grid points (C_R x SF x RF), {int(grid['n_ok'].max())} replicates "
+           f"each; {len(m)} reproduce the measured 2.13 m/s within +-"
+           f"{fmt(grid['tol_m_s'].iloc[0], 3)} m/s (the multiplicity):", "",
+           md_table(["C_R", "SF", "RF", "v_mean [m/s] (mean +- sd)"],
+                    [[fmt(r.restitution, 2), fmt(r.static_friction, 2),
+                      fmt(r.rolling_friction, 2),
+                      f"{r.v_mean_m_s_mean:.3f} +- {fmt(r.v_mean_m_s_sd, 3)}"]
+                     for r in m.itertuples(index=False)]), ""]
+    if sob is not None:
+        out += ["Sobol indices of v_mean (SALib, on a GP of the grid's runs"
+                + (f"; leave-one-out error {fmt(loo['rel_rmse_pct'].iloc[0], 2)} %, 95 % "
+                   f"coverage {fmt(loo['coverage95'].iloc[0], 2)}" if loo is not None else "")
+                + "):", "",
+                md_table(["parameter", "S1", "ST"],
+                         [[r.parameter, f"{r.S1:.3f} +- {r.S1_conf:.3f}",
+                           f"{r.ST:.3f} +- {r.ST_conf:.3f}"] for r in sob.itertuples()]), ""]
+    for png in ("figure8.png", "sobol_v_mean.png"):
+        if (d / png).is_file():
+            out += [f"![{png}](sensitivity/{png})", ""]
+    return out
 
 
 def page_predict(f: StudyFolder):

@@ -171,3 +171,22 @@ def test_committed_study_folders_build_without_problems(tmp_path):
     results = report.build_reports(tmp_path)
     assert [(r.study, r.problems) for r in results if not r.ok] == []
     assert all(os.path.getsize(r.path) > 200 for r in results)
+
+
+def test_studies_page_shows_figure8_and_sobol(tmp_path):
+    """The sensitivity subfolder (Figure 8 on the twin, Sobol) is on the studies page, with the
+    count of matching grid points read from its CSV."""
+    src = RESULTS_DIR / "studies"
+    if not (src / "sensitivity" / "figure8_grid.csv").is_file():
+        pytest.skip("no committed sensitivity study")
+    shutil.copytree(src, tmp_path / "studies", ignore=shutil.ignore_patterns("*.stl", "README.md"))
+    grid = pd.read_csv(src / "sensitivity" / "figure8_grid.csv")
+    n = int(grid["matches"].astype(str).str.lower().eq("true").sum())
+    report.build_reports(tmp_path)
+    page = (tmp_path / "studies" / "README.md").read_text()
+    assert "%d reproduce the measured 2.13 m/s" % n in page
+    assert "| restitution |" in page and "![figure8.png](sensitivity/figure8.png)" in page
+    # a broken sensitivity CSV is named on the page
+    (tmp_path / "studies" / "sensitivity" / "figure8_grid.csv").write_text("a,b\n1,2\n")
+    res = {r.study: r for r in report.build_reports(tmp_path)}
+    assert not res["studies"].ok and "figure8_grid.csv" in str(res["studies"].problems)
