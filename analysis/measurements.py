@@ -11,6 +11,8 @@ conditions.csv              condition_id, frequency_hz, ball_diameter_mm        
 summary.csv                 condition_id, v_mean_m_s, v_mean_sd_m_s, f_col_hz,      yes
                             f_col_sd_hz (sd cells may be empty)
 tracks/<condition_id>.csv   t_s, x_m, y_m (camera plane, x along the jar axis)     no
+                            [jar_x_m: the jar's x in the same frames, for the
+                            impact observables of analysis.flights]
 videos/<condition_id>.*     + videos/video.json: fps, ball_diameter_px or m_per_px  no
 yields.csv                  condition_id, time_min, yield_pct [phase]              no
 ==========================  =====================================================  ========
@@ -79,6 +81,9 @@ _CONDITIONS_OPTIONAL = {"amplitude_mm": "pos", "n_balls": "posint", "fill_g": "n
 _SUMMARY_REQUIRED = {"condition_id": "id", "v_mean_m_s": "nonneg", "f_col_hz": "nonneg"}
 _SUMMARY_SD = {"v_mean_sd_m_s": "nonneg", "f_col_sd_hz": "nonneg"}  # required columns, empty cells ok
 _TRACK_REQUIRED = {"t_s": "any", "x_m": "any", "y_m": "any"}
+#: optional: the jar's displacement along x in the same frames (a marker on the jar), which
+#: analysis.flights needs for the impact observables
+_TRACK_OPTIONAL = {"jar_x_m": "any"}
 _YIELDS_REQUIRED = {"condition_id": "id", "time_min": "nonneg", "yield_pct": "pct"}
 _YIELDS_OPTIONAL = {"yield_sd_pct": "nonneg"}
 
@@ -305,7 +310,7 @@ def _validate_meta(meta, fname="dataset.json"):
 
 
 def _validate_track(df, fname):
-    out = _validate_table(df, fname, _TRACK_REQUIRED)
+    out = _validate_table(df, fname, _TRACK_REQUIRED, optional=_TRACK_OPTIONAL)
     t = out["t_s"].to_numpy()
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if bad.size:
