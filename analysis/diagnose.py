@@ -867,7 +867,9 @@ def main(argv=None):
     """``python -m analysis.diagnose --dataset DIR --model pkg.mod:factory --out DIR [--add X]``
 
     ``factory(dataset)`` returns a dict with keys ``predict``, ``base_params``, ``effects`` and
-    optionally ``model_se``, ``crn_correlation``, ``fixed_effects``.
+    optionally ``model_se``, ``crn_correlation``, ``fixed_effects``, ``noise_observables`` and
+    ``observations`` (the table the model predicts, when it reads more of the dataset than its
+    summary and yields, e.g. the impact observables of jar tracks).
     """
     from analysis.measurements import DatasetError, load_dataset
 
@@ -887,14 +889,15 @@ def main(argv=None):
         problem = _load_model_factory(args.model)(ds)
         kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects",
                                       "noise_observables") if k in problem}
-        diag = diagnose(problem["predict"], ds, problem["base_params"], problem["effects"],
-                        alpha=args.alpha, **kw)
+        obs = problem.get("observations", ds)
+        diag = diagnose(problem["predict"], obs, problem["base_params"], problem["effects"],
+                        alpha=args.alpha, conditions=ds.conditions, **kw)
         added = None
         name = diag.best if args.add == "best" else args.add
         if name:
             kw.pop("crn_correlation", None)
             kw.pop("noise_observables", None)
-            added = add_effect(problem["predict"], ds, problem["base_params"],
+            added = add_effect(problem["predict"], obs, problem["base_params"],
                                problem["effects"], name, **kw)
         write_diagnosis(diag, args.out, added, ds.name)
     except (DatasetError, ValueError, KeyError, TypeError) as exc:

@@ -46,7 +46,8 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
                         runs_dir=None, out_dir=None, truth_dir=None,
                         yield_times_min=YIELD_TIMES_MIN, yield_sd_pct=1.0,
                         slope_pct_per_kj=None, intercept_pct=None, progress=True,
-                        twin_seed=None, twin_v_rel_sd=None, twin_f_col_sd_hz=None):
+                        twin_seed=None, twin_v_rel_sd=None, twin_f_col_sd_hz=None,
+                        tracks="auto", track_noise_m=5e-6):
     """Run the twin with ``effects`` at every condition and write a noisy measurement dataset.
 
     Parameters
@@ -72,6 +73,12 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     yield_sd_pct : sd of the yield noise [percentage points]
     slope_pct_per_kj, intercept_pct : the powder line X = a E_tot + b (default: the paper's
         Table 4); a kinetics effect in ``effects`` replaces it by its own law
+    tracks : True, False or 'auto' - also write tracks/<condition_id>.csv: the first replicate
+        as the camera sees it (2134 frames/s, lab frame) with the jar's position (jar_x_m), for
+        the impact observables of analysis.flights; 'auto': when the runs have trajectories
+        (the FAKE twin's have none)
+    track_noise_m : sd of the white tracking noise added to x, y and jar_x [m] (5 um: the
+        tracker's 0.01-0.04 px at ~0.1 mm/px, results/observe)
 
     The twin runs only the DEM effects (kinetics effects act on the yields). The reported sd of
     v_mean and f_col is the measurement noise combined with the twin's own replicate scatter of
@@ -162,9 +169,31 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
             "source": "analysis.hidden (SYNTHETIC)", "velocity_frame": "lab", "synthetic": True}
     cond = conditions[["condition_id", "frequency_hz", "ball_diameter_mm"]].copy()
     out = Path(out_dir or MEASUREMENTS_DIR / name)
+    track_tables, twin_flights = {}, {}
+    if tracks:
+        from analysis.config import RUNS_DIR
+        from analysis.flights import FlightError, recording_flights
+        from analysis.observe import camera_track
+        root = Path(runs_dir or RUNS_DIR)
+        have = all((root / str(r) / "trajectory.csv").is_file() for r in t["run_id"])
+        if tracks == "auto" and not have:
+            tracks = False
+        for cid, g in (t.groupby("condition_id", sort=False) if tracks else ()):
+            tr = camera_track(root / str(g["run_id"].iloc[0]))
+            for c in ("x_m", "y_m", "jar_x_m"):
+                tr[c] = tr[c] + track_noise_m * rng.standard_normal(len(tr))
+            track_tables[cid] = tr[["t_s", "x_m", "y_m", "jar_x_m"]]
+            vals = []
+            for rid in g["run_id"]:
+                try:
+                    vals.append(recording_flights(root / str(rid)).values)
+                except FlightError:
+                    pass
+            if vals:
+                twin_flights[cid] = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
     ds = Dataset(name=name, description=meta["description"], source=meta["source"],
                  velocity_frame="lab", conditions=cond, summary=summary, yields=yields,
-                 meta=meta)
+                 meta=meta, tracks=track_tables)
     ds_path = write_dataset(ds, out, overwrite=True)
     truth = {"name": name, "effects": effects, "base_config": base, "replicates": replicates,
              "noise": {"v_rel_sd": v_rel_sd, "f_col_sd_hz": f_col_sd_hz, "seed": seed,
@@ -176,6 +205,8 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
                           "yield_times_min": list(yield_times_min), "yields_true": y_true},
              "twin_means": {cid: {"v_mean_m_s": float(v), "f_col_hz": float(f)}
                             for cid, v, f in zip(ids, v_true, f_true)},
+             "twin_flights": twin_flights,
+             "track_noise_m": track_noise_m if track_tables else None,
              "run_ids": list(t["run_id"])}
     tdir = Path(truth_dir or HIDDEN_TRUTH_DIR)
     tdir.mkdir(parents=True, exist_ok=True)

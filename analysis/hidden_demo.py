@@ -46,11 +46,15 @@ def secret_choice(secret_seed):
 
 def predictions_table(model, theta, effects=None):
     """compare-style predictions (condition_id, observable, mean, sd, n_replicates, time_min) of
-    the twin model; sd is the per-run sd (se * sqrt(n))."""
+    the twin model; sd is the per-run sd (se * sqrt(n)). The impact observables of jar tracks
+    (analysis.flights) are left out: compare reads the summary and the yields."""
+    from analysis.flights import FLIGHT_OBSERVABLES
     mu = model.predict(theta, effects or {})
     se = model.model_se(theta)
     rows = []
     for (cid, obs), m in mu.items():
+        if obs in FLIGHT_OBSERVABLES:
+            continue
         t = np.nan
         if obs.startswith("yield_pct@"):
             t = float(obs.split("@")[1][:-3])
@@ -63,9 +67,12 @@ def predictions_table(model, theta, effects=None):
 
 
 def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept, yield_times,
-                     replicates=2, workers=2, seed0=500, runs_dir=None, runner=None):
+                     replicates=2, workers=2, seed0=500, runs_dir=None, runner=None,
+                     flights=False):
     """compare-style predictions from real twin runs (mean and sd over ``replicates`` seeds);
-    yields from the runs' mean E_kin and f_col through the powder line or a kinetics effect."""
+    yields from the runs' mean E_kin and f_col through the powder line or a kinetics effect;
+    with ``flights`` also the impact observables of the runs' recordings (analysis.flights;
+    rows with those observable names, none for runs without a trajectory)."""
     from effects import load_effects
     from analysis import kinetics
     from analysis.sweep import run_sweep
@@ -102,7 +109,34 @@ def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept,
             x_sd = slope * ts / 1000.0 * math.hypot(m * v * f * v_sd, e_kin * f_sd)
             rows.append({"condition_id": cid, "observable": "yield_pct", "mean": float(x),
                          "sd": float(x_sd), "n_replicates": len(g), "time_min": float(tm)})
+        if flights:
+            fl = twin_model.run_flights(list(g["run_id"]), runs_dir).dropna()
+            for k in (c for c in fl.columns if c != "run_id"):
+                if len(fl):
+                    rows.append({"condition_id": cid, "observable": k, "mean": fl[k].mean(),
+                                 "sd": fl[k].std(ddof=1) if len(fl) > 1 else np.nan,
+                                 "n_replicates": len(fl), "time_min": np.nan})
     return pd.DataFrame(rows)
+
+
+def rerun_chi2(observations, pred, n_fitted):
+    """chi2, dof of a diagnose observations table against twin-rerun predictions (mean, sd of
+    a run, n_replicates per key; yields keyed 'yield_pct@<t>min'): sigma combines the measured sd
+    and the rerun mean's se; keys the rerun lacks are left out."""
+    p = pred.copy()
+    p["key"] = [o if o != "yield_pct" else "yield_pct@%gmin" % t
+                for o, t in zip(p["observable"], p["time_min"])]
+    p = p.set_index(["condition_id", "key"])
+    z = []
+    for r in observations.itertuples():
+        k = (r.condition_id, r.observable)
+        if k not in p.index:
+            continue
+        q = p.loc[k]
+        se = float(q["sd"]) / math.sqrt(float(q["n_replicates"])) if np.isfinite(q["sd"]) else 0.0
+        z.append((r.value - float(q["mean"])) / math.hypot(r.sd, se))
+    z = np.asarray(z)
+    return float(np.sum(z ** 2)), int(len(z) - n_fitted)
 
 
 def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, say=print, **kw):
@@ -167,14 +201,15 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
     say("   " + cmp0.summary(2.0).replace("\n", "\n   "))
 
     say("3/5 diagnose: which catalog effect explains the misfit?")
-    diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
+    obs = prob.get("observations", ds)
+    diag = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
                     model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
-                    noise_observables=prob["noise_observables"])
+                    noise_observables=prob["noise_observables"], conditions=ds.conditions)
     say("   " + diag.verdict)
     added = None
     if diag.best:
         say("4/5 add %s: refit the base parameters and its strength" % diag.best)
-        added = add_effect(prob["predict"], ds, prob["base_params"], prob["effects"], diag.best,
+        added = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], diag.best,
                            model_se=prob["model_se"])
         say("   " + added.summary())
     else:
@@ -196,12 +231,16 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
         pred = twin_predictions(ds.conditions, theta, dem, kin, p.get("slope_pct_per_kj", 0.0),
                                 p.get("intercept_pct", 0.0), model.yield_times_min,
                                 replicates=replicates, workers=workers, runner=runner,
-                                runs_dir=runs_dir)
+                                runs_dir=runs_dir, flights=bool(model.flight_conditions))
         n_fit = len(prob["base_params"]) + 1
-        cmp1 = compare(ds, pred, n_fitted_params=n_fit)
+        from analysis.flights import FLIGHT_OBSERVABLES
+        cmp1 = compare(ds, pred[~pred["observable"].isin(FLIGHT_OBSERVABLES)],
+                       n_fitted_params=n_fit)
         write_compare(cmp1, ds, out_dir / "compare_after_twin")
-        verify_row = {"stage": "with %s (twin rerun)" % added.effect, "chi2": cmp1.chi2,
-                      "dof": cmp1.dof, "chi2_dof": cmp1.chi2 / max(cmp1.dof, 1)}
+        # the staircase's chi2 is over diagnose's observations (impact observables included)
+        chi2, dof = rerun_chi2(obs, pred, n_fit)
+        verify_row = {"stage": "with %s (twin rerun)" % added.effect, "chi2": chi2,
+                      "dof": dof, "chi2_dof": chi2 / max(dof, 1)}
         times["verify_s"] = time.perf_counter() - t0
         say("   twin rerun: chi2/dof %.2f" % verify_row["chi2_dof"])
 
@@ -248,7 +287,10 @@ def _write_page(out_dir, ds, cmp0, diag, added, stair, reveal, times, truth):
             "absorbed_frac", "identifiable", "significant"]
     lines = ["# Hidden-effect demo (SYNTHETIC data from the twin)", "",
              "A secret effect was switched on in the twin; the dataset (v_mean, f_col, yields at "
-             "8 conditions, with noise) was then compared, diagnosed and corrected blind.", "",
+             "8 conditions, with noise; a track of the ball and the jar per condition, read by "
+             "analysis.flights into impact observables) was then compared, diagnosed and "
+             "corrected blind. Compare shows v_mean, f_col and the yields; diagnose and the "
+             "chi2/dof staircase use the impact observables too.", "",
              "## 1. Compare: the calibrated twin without effects", "",
              "chi2/dof = %.2f (dof %d). Where it fails:" % (cmp0.chi2 / max(cmp0.dof, 1),
                                                            cmp0.dof), "", "```",

@@ -37,7 +37,7 @@ from analysis import twin_model
 SUITE_DIR = RESULTS_DIR / "hidden_suite"
 
 
-def suite_cases(dem_fracs=(0.7,), kin_fracs=(0.5, 0.9), include_null=True):
+def suite_cases(dem_fracs=(0.35, 0.7), kin_fracs=(0.5, 0.9), include_null=True):
     """(label, effects spec, true effect or None, strength coordinate) of the suite.
 
     DEM effects at ``dem_fracs`` of their diagnose range (one twin data set each), kinetics
@@ -63,9 +63,10 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
     truth = json.loads(Path(truth_path).read_text())
     prob = twin_model.factory(ds, **model_kwargs)
     t0 = time.perf_counter()
-    diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
+    obs = prob.get("observations", ds)
+    diag = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
                     model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
-                    noise_observables=prob["noise_observables"],
+                    noise_observables=prob["noise_observables"], conditions=ds.conditions,
                     alpha=alpha)
     true = [k for k in truth["effects"]]
     true = true[0] if true else None
@@ -85,45 +86,20 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
                    true_significant=bool(tab.loc[true, "significant"]),
                    true_strength_fit=float(tab.loc[true, "strength"]),
                    true_strength_se=float(tab.loc[true, "strength_se"]))
-    row["shift_sigma_max"] = shift_sigma(prob["model"], ds, truth)
+    row["shift_sigma_max"] = shift_sigma(prob, ds, truth)
     row["shift_sigma_projected"] = projected_shift_sigma(prob, ds, truth)
+    row["n_observables"] = int(len(obs)) if isinstance(obs, pd.DataFrame) else np.nan
     if diag.best:
-        add = add_effect(prob["predict"], ds, prob["base_params"], prob["effects"], diag.best,
+        add = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], diag.best,
                          model_se=prob["model_se"])
         row["chi2_dof_after_add"] = float(add.staircase["chi2_dof"].iloc[-1])
     row["seconds"] = time.perf_counter() - t0
     return row
 
 
-def shift_sigma(model, ds, truth):
-    """Largest |truth - twin without the effect| / sd over the observables: the hidden effect's
-    size in units of the dataset's noise (the twin without it = the model at theta_ref)."""
-    theta = dict(model.theta_ref, slope_pct_per_kj=truth["kinetics"]["slope_pct_per_kj"],
-                 intercept_pct=truth["kinetics"]["intercept_pct"])
-    base = model.predict(theta, {})
-    sd = {}
-    for r in ds.summary.itertuples():
-        sd[(r.condition_id, "v_mean_m_s")] = float(r.v_mean_sd_m_s)
-        sd[(r.condition_id, "f_col_hz")] = float(r.f_col_sd_hz)
-    if ds.yields is not None:
-        for r in ds.yields.itertuples():
-            sd[(r.condition_id, "yield_pct@%gmin" % r.time_min)] = float(r.yield_sd_pct)
-    out = 0.0
-    for cid, m in truth["twin_means"].items():
-        for obs in ("v_mean_m_s", "f_col_hz"):
-            out = max(out, abs(m[obs] - base[(cid, obs)]) / sd[(cid, obs)])
-        times = truth["kinetics"]["yield_times_min"]
-        for t, y in zip(times, truth["kinetics"]["yields_true"].get(cid, [])):
-            k = (cid, "yield_pct@%gmin" % t)
-            out = max(out, abs(y - base[k]) / sd[k])
-    return out
-
-
-def projected_shift_sigma(prob, ds, truth):
-    """The hidden effect's size that no recalibration can absorb: the largest |z| left when the
-    base parameters (without any effect) are fitted to the noise-free truth."""
-    from analysis.diagnose import _Problem, observations_from_dataset
-    obs = observations_from_dataset(ds)
+def truth_values(truth):
+    """{(condition_id, observable): noise-free truth} of a hidden dataset's truth file (twin
+    means, impact observables of its runs, yields)."""
     true = {}
     for cid, m in truth["twin_means"].items():
         true[(cid, "v_mean_m_s")] = m["v_mean_m_s"]
@@ -131,21 +107,54 @@ def projected_shift_sigma(prob, ds, truth):
         for t, y in zip(truth["kinetics"]["yield_times_min"],
                         truth["kinetics"]["yields_true"].get(cid, [])):
             true[(cid, "yield_pct@%gmin" % t)] = y
+    for cid, m in truth.get("twin_flights", {}).items():
+        for k, v in m.items():
+            true[(cid, k)] = v
+    return true
+
+
+def _truth_problem(prob, ds, truth):
+    """A diagnose problem whose observations are the noise-free truth (sd and model noise as in
+    the dataset's own problem)."""
+    from analysis.diagnose import _Problem, observations_from_dataset
+    obs = prob.get("observations")
+    obs = (observations_from_dataset(ds) if obs is None else obs).copy()
+    true = truth_values(truth)
+    keep = [(c, o) in true for c, o in zip(obs["condition_id"], obs["observable"])]
+    obs = obs[keep].reset_index(drop=True)
     obs["value"] = [true[(c, o)] for c, o in zip(obs["condition_id"], obs["observable"])]
-    pr = _Problem(prob["predict"], obs, prob["base_params"], prob["effects"], prob["model_se"],
-                  None, 1e-3, None)
+    return _Problem(prob["predict"], obs, prob["base_params"], prob["effects"],
+                    prob["model_se"], None, 1e-3, None)
+
+
+def shift_sigma(prob, ds, truth):
+    """Largest |truth - twin without the effect| / sigma over the observables: the hidden
+    effect's size in units of the comparison's noise (the twin without it = the model at
+    theta_ref with the truth's powder line)."""
+    pr = _truth_problem(prob, ds, truth)
+    theta = dict(prob["model"].theta_ref, slope_pct_per_kj=truth["kinetics"]["slope_pct_per_kj"],
+                 intercept_pct=truth["kinetics"]["intercept_pct"])
+    theta = {p.name: theta[p.name] for p in prob["base_params"]}
+    return float(np.max(np.abs(pr.y - pr.mu(theta, {})) / pr.sigma))
+
+
+def projected_shift_sigma(prob, ds, truth):
+    """The hidden effect's size that no recalibration can absorb: the largest |z| left when the
+    base parameters (without any effect) are fitted to the noise-free truth."""
+    pr = _truth_problem(prob, ds, truth)
     fit = pr.fit({p.name: p.value for p in prob["base_params"]})
     return float(np.max(np.abs(fit.residuals.to_numpy())))
 
 
 def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, cases=None,
               runner=None, runs_dir=None, library=None, emulator=None, progress=True,
-              replicates=1):
+              replicates=1, flights=True):
     """Make, diagnose and score every case x noise seed; returns the rows table.
 
     ``replicates`` twin runs per condition (default 1: a measurement is one realisation of the
     chaotic mill; the twin's scatter, known from the library's anchor, goes into the reported
-    sd)."""
+    sd). ``flights``: the diagnosis also reads the impact observables of the datasets' jar
+    tracks (analysis.flights); False diagnoses on v_mean, f_col and the yields alone."""
     from tqdm.auto import tqdm
     from analysis.hidden import make_hidden_dataset
     out_dir = Path(out_dir)
@@ -160,7 +169,9 @@ def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, c
     theta_ref = dict(library[1]["theta_ref"])
     if emulator is None:
         emulator = twin_model.base_emulator()
-    model_kwargs = {"library": library, "emulator": emulator}
+    model_kwargs = {"library": library, "emulator": emulator, "flights": flights}
+    if flights:
+        model_kwargs["flight_emulator"] = twin_model.flight_emulator()
     anchor = twin_model.TwinModel(pd.DataFrame(library[1]["conditions"]), {},
                                   library=library, emulator=emulator)
     twin_sd = anchor.twin_scatter()
@@ -310,6 +321,8 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", default=str(SUITE_DIR))
     ap.add_argument("--fresh", action="store_true", help="forget earlier suite rows")
+    ap.add_argument("--no-flights", action="store_true",
+                    help="diagnose on v_mean, f_col and yields only (ignore the jar tracks)")
     a = ap.parse_args(argv)
     if a.noise_seeds < 1:
         print("analysis.hidden_suite: error: --noise-seeds must be >= 1", file=sys.stderr)
@@ -319,7 +332,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     try:
         rows = run_suite(a.out, noise_seeds=range(a.noise_seeds), twin_seed=a.twin_seed,
-                         workers=a.workers)
+                         workers=a.workers, flights=not a.no_flights)
     except (FileNotFoundError, RuntimeError, ValueError) as exc:
         print("analysis.hidden_suite: error: %s" % exc, file=sys.stderr)
         return 2

@@ -15,11 +15,19 @@ an emulator assembled from real twin runs, each part justified by what the twin 
   are held at ``theta_ref``: the calibration posterior spans half of their prior ranges, i.e.
   v_mean barely depends on them, and a GP slope fitted from 7 parameter sets there is noise;
 * **DEM effects**: the *signature library* - the twin at ``theta_ref`` with one effect at its
-  signature strength (the top of its diagnose range), same seeds as the anchor; the change of
-  each observable is interpolated linearly in the effect's strength coordinate (chosen per effect
-  so that the response is close to linear: the restitution drop k, the arm curvature, (f_0/f_n)^2
-  for the mount's stiffness, h^2 for the powder layer's absorbed energy, the extra rolling
-  friction, the drag multiplier). Effects add;
+  signature strengths (half and all of its diagnose range, ``SIGNATURE_LEVELS``), same seeds as
+  the anchor; the change of each observable is interpolated piecewise linearly through 0 and
+  the levels in the effect's strength coordinate (chosen per effect so that the response is
+  close to linear: the restitution drop k, the arm curvature, (f_0/f_n)^2 for the mount's
+  stiffness, h^2 for the powder layer's absorbed energy, the extra rolling friction, the drag
+  multiplier; one level was not enough: jar compliance's resonance gain and the impact
+  observables bend). Effects add;
+* **impact observables** (when the dataset has tracks with the jar, :mod:`analysis.flights`:
+  apparent restitution, approach speed, impact phase, jar amplitude, vertical rms speed per
+  condition): anchor and signatures read from the library's recordings by the same operator,
+  base parameters through a GP on the calibration's design runs (:func:`flight_emulator`, also
+  as a difference). They pin restitution (e_app) and stroke (jar amplitude) directly, so the
+  recalibration can no longer hide an effect's footprint on v_mean in them;
 * **kinetics**: yields from the predicted E_kin = m v^2 / 2 and f_col through the powder line
   X = a E_tot + b (a, b base parameters) or a kinetics effect's ``modify_kinetics``; exact.
 
@@ -30,6 +38,7 @@ every footprint: an effect the twin cannot tell from its chaos (air drag, the de
 identifiable.
 
     python -m analysis.twin_model --build [--replicates 2] [--workers 2]   # the library
+    python -m analysis.twin_model --flights      # impact observables of its cached runs
     python -m analysis.diagnose --dataset DIR --model analysis.twin_model:factory --out DIR
 """
 from __future__ import annotations
@@ -52,6 +61,14 @@ OUTPUTS = ("v_mean_m_s", "f_col_hz")
 STEEL_DENSITY_KG_M3 = 7800.0  # analysis.kinetics.STEEL_DENSITY_KG_M3 (checked in the tests)
 V_REL_SD_FLOOR = 0.0025       # smallest replicate sd of one run's v_mean (relative)
 F_COL_SD_FLOOR_HZ = 1.0       # smallest replicate sd of one run's f_col [1/s]
+#: signature strengths, fractions of each DEM effect's s_max: the response between them (and
+#: from 0 to the first) is interpolated linearly; jar compliance's resonance gain and the impact
+#: observables' response are far from linear over the whole range
+SIGNATURE_LEVELS = (0.5, 1.0)
+DESIGN_FLIGHTS_FILE = "design_flights.csv"   # impact observables of the calibration's runs
+#: smallest replicate sd of one run's impact observables (analysis.flights): absolute
+FLIGHT_SD_FLOORS = {"e_app": 0.003, "v_in_m_s": 0.005, "impact_phase_rad": 0.01,
+                    "jar_amplitude_m": 0.0, "vy_rms_m_s": 0.0005}
 
 
 @dataclass(frozen=True)
@@ -68,6 +85,7 @@ class Candidate:
         'square' (strength = (param / p0)^2)
     p0 : reference of the non-linear coordinates
     fixed : further parameters of the effect (defaults otherwise)
+    levels : signature strengths as fractions of s_max (None: ``SIGNATURE_LEVELS``)
     """
 
     name: str
@@ -78,6 +96,11 @@ class Candidate:
     coord: str = "linear"
     p0: float = 1.0
     fixed: tuple = ()
+    levels: tuple | None = None
+
+    @property
+    def signature_levels(self):
+        return tuple(self.levels or SIGNATURE_LEVELS)
 
     def param_value(self, s):
         """Catalog parameter value for strength ``s`` (> 0)."""
@@ -115,7 +138,10 @@ class Candidate:
 CANDIDATES = (
     Candidate("viscoelastic_restitution", "dem", "k", 0.6, "-"),
     Candidate("arc_motion", "dem", "curvature_1_m", 15.0, "1/m"),
-    Candidate("jar_compliance", "dem", "f_n_hz", 1.5, "Hz", coord="inv_square", p0=100.0),
+    # the 20.6 mm ball's motion switches between (100 Hz / f_n)^2 = 0.75 and 1.05 (approach
+    # speed 4.0 -> 1.1 m/s at 30 Hz): denser levels there
+    Candidate("jar_compliance", "dem", "f_n_hz", 1.5, "Hz", coord="inv_square", p0=100.0,
+              levels=(0.5, 0.625, 0.75, 0.875, 1.0)),
     Candidate("powder_layer", "dem", "layer_thickness_m", 1.0, "m", coord="square",
               p0=5e-4),
     Candidate("rolling_resistance", "dem", "extra_rolling_friction", 2.0, "-"),
@@ -146,14 +172,15 @@ def reference_parameters(calibration_dir=CALIBRATION_DIR):
 # --------------------------------------------------------------------------- the library
 
 def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None,
-                    anchor_replicates=None):
+                    anchor_replicates=None, levels=None):
     """(label, effect, strength, condition_id, config) rows of the signature library: the anchor
     (label 'none', ``anchor_replicates`` seeds, default ``replicates``) and every DEM candidate
-    at its signature strength (the first ``replicates`` of the same seeds)."""
+    at each of its signature strengths (``levels`` x s_max; default each candidate's
+    ``signature_levels``) with the first ``replicates`` of the same seeds."""
     rows = []
     variants = [("none", None, 0.0, None)]
-    variants += [(c.name, c.name, c.s_max, c.spec(c.s_max)) for c in CANDIDATES
-                 if c.kind == "dem"]
+    variants += [(c.name, c.name, fr * c.s_max, c.spec(fr * c.s_max)) for c in CANDIDATES
+                 if c.kind == "dem" for fr in (levels or c.signature_levels)]
     for label, eff, s, spec in variants:
         n_seeds = (anchor_replicates or replicates) if label == "none" else replicates
         for cnd in conditions.itertuples():
@@ -168,13 +195,47 @@ def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None,
     return rows
 
 
+def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
+    """Impact observables (:mod:`analysis.flights`) of cached twin runs, one row per run id
+    (NaN where the operator finds no end-to-end impacts, e.g. a run in another motion mode, or
+    the run has no trajectory, e.g. the FAKE twin's)."""
+    from analysis.flights import FLIGHT_OBSERVABLES, FlightError, recording_flights
+    from analysis.config import RUNS_DIR
+    from analysis.observe import ObserveError
+    root = Path(runs_dir or RUNS_DIR)
+    rows = []
+    for rid in run_ids:
+        try:
+            vals = recording_flights(root / str(rid)).values
+        except (FlightError, ObserveError):
+            vals = {k: np.nan for k in FLIGHT_OBSERVABLES}
+        rows.append(dict(run_id=rid, **vals))
+    return pd.DataFrame(rows, columns=["run_id", *FLIGHT_OBSERVABLES])
+
+
+def add_flight_columns(runs: pd.DataFrame, runs_dir=None) -> pd.DataFrame:
+    """``runs`` with the impact observables of its run ids as columns (recomputed)."""
+    from analysis.flights import FLIGHT_OBSERVABLES
+    fl = run_flights(list(runs["run_id"]), runs_dir)
+    out = runs.drop(columns=[c for c in FLIGHT_OBSERVABLES if c in runs.columns])
+    return pd.concat([out.reset_index(drop=True),
+                      fl[list(FLIGHT_OBSERVABLES)].reset_index(drop=True)], axis=1)
+
+
 def summarise_library(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per (label, condition): mean, sd and n of v_mean and f_col, and the change from the anchor
-    (dv_pct, its se assuming independent replicates)."""
-    g = runs.groupby(["label", "condition_id"], sort=False)
-    s = g.agg(strength=("strength", "first"), n=("v_mean_m_s", "size"),
-              v_mean_m_s=("v_mean_m_s", "mean"), v_sd_m_s=("v_mean_m_s", "std"),
-              f_col_hz=("f_col_hz", "mean"), f_col_sd_hz=("f_col_hz", "std")).reset_index()
+    """Per (label, strength, condition): mean, sd and n of v_mean and f_col (and of the impact
+    observables when ``runs`` has them: columns <name> and <name>_sd), and the change from the
+    anchor (dv_pct, df_col_hz)."""
+    from analysis.flights import FLIGHT_OBSERVABLES
+    g = runs.groupby(["label", "strength", "condition_id"], sort=False)
+    aggs = dict(n=("v_mean_m_s", "size"),
+                v_mean_m_s=("v_mean_m_s", "mean"), v_sd_m_s=("v_mean_m_s", "std"),
+                f_col_hz=("f_col_hz", "mean"), f_col_sd_hz=("f_col_hz", "std"))
+    for k in FLIGHT_OBSERVABLES:
+        if k in runs.columns:
+            aggs[k] = (k, "mean")
+            aggs[k + "_sd"] = (k, "std")
+    s = g.agg(**aggs).reset_index()
     a = s[s["label"] == "none"].set_index("condition_id")
     s["dv_pct"] = 100 * (s["v_mean_m_s"] / a.loc[s["condition_id"], "v_mean_m_s"].to_numpy() - 1)
     s["df_col_hz"] = s["f_col_hz"] - a.loc[s["condition_id"], "f_col_hz"].to_numpy()
@@ -182,7 +243,8 @@ def summarise_library(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None, runner=None,
-                  conditions=None, theta_ref=None, base=None, anchor_replicates=4):
+                  conditions=None, theta_ref=None, base=None, anchor_replicates=4,
+                  levels=None):
     """Run (cached) and write the signature library: signature_runs.csv, signatures.csv,
     signatures.png, library.json. Returns the summary table."""
     from analysis.atomic_dir import publish_dir, staging_dir
@@ -194,7 +256,8 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
         conditions = load_dataset(PAPER_TABLE3_DIR).conditions
     theta_ref = dict(theta_ref or reference_parameters())
     rows = library_configs(conditions, theta_ref, replicates=replicates, base=base,
-                           anchor_replicates=max(anchor_replicates or 0, replicates))
+                           anchor_replicates=max(anchor_replicates or 0, replicates),
+                           levels=levels)
     res = run_sweep([r[4] for r in rows], runner=runner, workers=workers, runs_dir=runs_dir)
     if not res.ok:
         raise RuntimeError("signature library: %d twin run(s) failed:\n%s"
@@ -207,14 +270,20 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
               "run_id"):
         if c in t.columns:
             runs[c] = t[c].to_numpy()
+    runs = add_flight_columns(runs, runs_dir)
     summ = summarise_library(runs)
+    design = design_flights(runs_dir=runs_dir)
     out_dir = Path(out_dir)
     tmp = staging_dir(out_dir)
     try:
+        if design is not None:
+            design.to_csv(tmp / DESIGN_FLIGHTS_FILE, index=False)
         runs.to_csv(tmp / "signature_runs.csv", index=False)
         summ.to_csv(tmp / "signatures.csv", index=False)
         meta = {"theta_ref": theta_ref, "replicates": replicates,
                 "anchor_replicates": max(anchor_replicates or 0, replicates),
+                "levels": {c.name: list(levels or c.signature_levels) for c in CANDIDATES
+                           if c.kind == "dem"},
                 "base_config": base or {},
                 "candidates": [c.__dict__ | {"fixed": dict(c.fixed)} for c in CANDIDATES],
                 "conditions": conditions[["condition_id", "frequency_hz",
@@ -229,12 +298,55 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
     return summ
 
 
+def design_flights(calibration_dir=CALIBRATION_DIR, runs_dir=None):
+    """The calibration's design runs (inputs) with their impact observables, or None when the
+    calibration has no design table: the training set of the impact observables' GP."""
+    p = Path(calibration_dir) / "design_runs.csv"
+    if not p.exists():
+        return None
+    d = pd.read_csv(p)
+    d = d[d["run_id"].notna()].reset_index(drop=True)
+    keep = ["restitution", "static_friction", "rolling_friction", "amplitude_m",
+            "frequency_hz", "ball_diameter_m", "seed", "motion_mode", "run_id"]
+    return add_flight_columns(d[[c for c in keep if c in d.columns]], runs_dir)
+
+
+def refresh_flights(lib_dir=SIGNATURE_DIR, runs_dir=None, calibration_dir=CALIBRATION_DIR):
+    """Recompute the impact observables of an existing library's runs (no new twin runs):
+    rewrites signature_runs.csv, signatures.csv and design_flights.csv."""
+    lib_dir = Path(lib_dir)
+    f = lib_dir / "signature_runs.csv"
+    if not f.exists():
+        raise FileNotFoundError("signature library %s missing: run `make signatures`" % f)
+    runs = add_flight_columns(pd.read_csv(f), runs_dir)
+    summ = summarise_library(runs)
+    design = design_flights(calibration_dir, runs_dir)
+    for name, table in (("signature_runs.csv", runs), ("signatures.csv", summ),
+                        (DESIGN_FLIGHTS_FILE, design)):
+        if table is None:
+            continue
+        tmp = lib_dir / (name + ".tmp")
+        table.to_csv(tmp, index=False)
+        tmp.replace(lib_dir / name)
+    meta = json.loads((lib_dir / "library.json").read_text())
+    write_page(summ, meta, lib_dir)
+    return summ
+
+
+def top_level(summ):
+    """The library summary at each label's largest strength (the anchor and one signature per
+    effect)."""
+    top = summ.groupby("label", sort=False)["strength"].transform("max")
+    return summ[summ["strength"] == top].reset_index(drop=True)
+
+
 def plot_library(summ, path):
     """Bar chart: change of v_mean [%] per condition for every DEM effect at its signature
     strength, with the anchor's +-2 se band."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    summ = top_level(summ)
     labels = [c for c in summ["label"].unique() if c != "none"]
     cids = list(summ.loc[summ["label"] == "none", "condition_id"])
     a = summ[summ["label"] == "none"].set_index("condition_id")
@@ -258,6 +370,7 @@ def plot_library(summ, path):
 
 def write_page(summ, meta, folder):
     """README.md of the library: what it is, the signatures table, the figure."""
+    summ = top_level(summ)
     cands = {c["name"]: c for c in meta["candidates"]}
     a = summ[summ["label"] == "none"]
     rel = 100 * float(np.sqrt(np.nanmean((a["v_sd_m_s"] / a["v_mean_m_s"]) ** 2)))
@@ -285,6 +398,26 @@ def write_page(summ, meta, folder):
     for cid in piv.index:
         lines.append("| %s | " % cid + " | ".join("%+.1f" % df.loc[cid, c] for c in piv.columns)
                      + " |")
+    from analysis.flights import FLIGHT_OBSERVABLES
+    if all(k in summ.columns and summ[k].notna().any() for k in FLIGHT_OBSERVABLES):
+        a = summ[summ["label"] == "none"].set_index("condition_id")
+        lines += ["", "Impact observables of the jar tracks (`analysis.flights`), mean over the "
+                  "conditions: the anchor, and each effect's change at the top of its range "
+                  "in units of one run's scatter (pooled over labels) - what a jar track "
+                  "adds to v_mean and f_col:", "",
+                  "| | " + " | ".join(FLIGHT_OBSERVABLES) + " |",
+                  "|---|" + "---|" * len(FLIGHT_OBSERVABLES),
+                  "| anchor | " + " | ".join("%.4g" % a[k].mean() for k in FLIGHT_OBSERVABLES)
+                  + " |"]
+        pooled = {k: float(np.sqrt(np.nanmean(summ[k + "_sd"] ** 2))) for k in
+                  FLIGHT_OBSERVABLES}
+        for lab in piv.columns:
+            d = summ[summ["label"] == lab].set_index("condition_id").loc[a.index]
+            cells = []
+            for k in FLIGHT_OBSERVABLES:
+                dz = (d[k] - a[k]) / pooled[k] if pooled[k] > 0 else (d[k] - a[k]) * np.nan
+                cells.append("%+.1f" % float(dz.mean()))
+            lines.append("| %s | " % lab + " | ".join(cells) + " |")
     lines += ["", "![signatures](signatures.png)", ""]
     (Path(folder) / "README.md").write_text("\n".join(lines))
 
@@ -312,6 +445,46 @@ def base_emulator(calibration_dir=CALIBRATION_DIR, random_state=0):
     return em.fit(d[names], d[list(OUTPUTS)])
 
 
+def flight_emulator(lib_dir=SIGNATURE_DIR, random_state=0):
+    """GP emulator of the impact observables on the calibration's design runs (their recordings
+    read by analysis.flights; design_flights.csv of the library), runs in end-to-end flight."""
+    from analysis.emulator import GPEmulator
+    from analysis.flights import FLIGHT_OBSERVABLES
+    p = Path(lib_dir) / DESIGN_FLIGHTS_FILE
+    if not p.exists():
+        raise FileNotFoundError("%s missing: run `python -m analysis.twin_model --flights`" % p)
+    d = pd.read_csv(p)
+    d = d[d[list(FLIGHT_OBSERVABLES)].notna().all(axis=1)]
+    if "motion_mode" in d.columns:
+        d = d[d["motion_mode"] == "end_to_end"]
+    names = ["restitution", "static_friction", "rolling_friction", "amplitude_m",
+             "frequency_hz", "ball_diameter_m"]
+    bounds = {k: (float(d[k].min()), float(d[k].max())) for k in names}
+    em = GPEmulator(bounds, outputs=FLIGHT_OBSERVABLES, n_restarts_optimizer=1,
+                    random_state=random_state)
+    return em.fit(d[names], d[list(FLIGHT_OBSERVABLES)])
+
+
+def _levels(d, cids, cols, anchor):
+    """(strengths, changes) of one effect's library rows: strengths (k,) ascending with 0
+    prepended, changes (k, n_cond, n_cols) from the anchor (0 at strength 0; NaN -> 0)."""
+    levels = sorted(float(x) for x in d["strength"].unique())
+    deltas = [np.zeros_like(anchor)]
+    for lv in levels:
+        dd = d[d["strength"] == lv].set_index("condition_id").loc[cids]
+        deltas.append(np.nan_to_num(dd[cols].to_numpy(float) - anchor))
+    return np.array([0.0] + levels), np.array(deltas)
+
+
+def _interp_levels(sig, s):
+    """Change at strength ``s``: piecewise linear through the levels, the last segment
+    extended beyond the top."""
+    xs, ds = sig
+    k = int(np.clip(np.searchsorted(xs, s) - 1, 0, len(xs) - 2))
+    w = (s - xs[k]) / (xs[k + 1] - xs[k])
+    return (1.0 - w) * ds[k] + w * ds[k + 1]
+
+
 class TwinModel:
     """predict(theta, effects) for diagnose, from the anchor, the GP difference and the signature
     library (see the module docstring).
@@ -324,10 +497,21 @@ class TwinModel:
     library : (summary, meta) from :func:`load_library`, default results/signatures
     emulator : fitted GPEmulator or None (default :func:`base_emulator`)
     base : names of the calibrated DEM base parameters
+    flight_conditions : condition ids whose impact observables (analysis.flights: e_app,
+        v_in_m_s, impact_phase_rad, jar_amplitude_m, vy_rms_m_s) are predicted too - the
+        conditions with a jar track. Their anchor and signatures come from the library's runs
+        read by the same operator, the base parameters act through :func:`flight_emulator`
+        (again as a difference), and their model noise is one run's scatter per condition,
+        pooled over the library's labels: the anchor mean's se in ``model_se``, and one run's
+        sd added to the measured sd by :func:`factory` (a track is one realisation of the
+        chaotic motion: its own within-record se does not see the run-to-run part).
+    flight_emulator : fitted GPEmulator of the impact observables or None (default
+        :func:`flight_emulator`)
     """
 
     def __init__(self, conditions, yield_times_min=None, library=None, emulator=None,
-                 base=("restitution", "amplitude_m")):
+                 base=("restitution", "amplitude_m"), flight_conditions=(),
+                 flight_emulator=None):
         summ, meta = library if library is not None else load_library()
         self.theta_ref = dict(meta["theta_ref"])
         self.base_names = tuple(base)
@@ -368,12 +552,11 @@ class TwinModel:
             d = summ[summ["label"] == c.name]
             if not len(d):
                 raise ValueError("the signature library has no runs of %s" % c.name)
-            d = d.set_index("condition_id").loc[cids]
-            self.sig[c.name] = (float(d["strength"].iloc[0]),
-                                d[["v_mean_m_s", "f_col_hz"]].to_numpy(float) - self.anchor)
+            self.sig[c.name] = _levels(d, cids, ["v_mean_m_s", "f_col_hz"], self.anchor)
         self.em = emulator if emulator is not None else base_emulator()
         X = self._em_inputs(self.theta_ref)
         self.em_ref = self.em.predict(X)
+        self._init_flights(summ, a, cids, flight_conditions, flight_emulator)
         self.mass_kg = (STEEL_DENSITY_KG_M3 * math.pi / 6.0
                         * (self.conditions["ball_diameter_mm"].to_numpy(float) * 1e-3) ** 3)
         self.yield_times_min = {k: list(v) for k, v in (yield_times_min or {}).items()}
@@ -381,8 +564,50 @@ class TwinModel:
         for cid in cids:
             keys += [(cid, "v_mean_m_s"), (cid, "f_col_hz")]
             keys += [(cid, "yield_pct@%gmin" % t) for t in self.yield_times_min.get(cid, [])]
+            if cid in self.flight_conditions:
+                keys += [(cid, k) for k in self.flight_obs]
         self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
         self._kin = candidates("kinetics")
+
+    def _init_flights(self, summ, a, cids, flight_conditions, emulator):
+        from analysis.flights import FLIGHT_OBSERVABLES
+        self.flight_obs = tuple(FLIGHT_OBSERVABLES)
+        self.flight_conditions = [c for c in cids if c in set(flight_conditions or ())]
+        unknown = set(flight_conditions or ()) - set(cids)
+        if unknown:
+            raise ValueError("flight conditions %s are not among the conditions"
+                             % sorted(unknown))
+        if not self.flight_conditions:
+            return
+        missing = [k for k in self.flight_obs if k not in summ.columns]
+        if missing:
+            raise ValueError("the signature library has no impact observables (%s): run "
+                             "`python -m analysis.twin_model --flights`" % ", ".join(missing))
+        fo = list(self.flight_obs)
+        self.fl_anchor = a[fo].to_numpy(float)
+        if not np.all(np.isfinite(self.fl_anchor)):
+            raise ValueError("the library's anchor has no impact observables at some condition")
+        sd = summ[[k + "_sd" for k in fo]].pow(2).groupby(summ["condition_id"]).mean() \
+            .loc[cids].to_numpy(float) ** 0.5
+        floors = np.array([FLIGHT_SD_FLOORS[k] for k in fo])
+        self.fl_sd_cond = np.fmax(np.nan_to_num(sd), floors)
+        self.fl_sig = {}
+        for c in CANDIDATES:
+            if c.kind != "dem":
+                continue
+            self.fl_sig[c.name] = _levels(summ[summ["label"] == c.name], cids, fo,
+                                          self.fl_anchor)
+        self.fl_em = emulator if emulator is not None else flight_emulator()
+        self.fl_em_ref = self.fl_em.predict(self._em_inputs(self.theta_ref))
+
+    def flight_outputs(self, theta, effects=None):
+        """(n_cond, 5) impact observables at ``theta`` with DEM effects at their strengths."""
+        effects = effects or {}
+        y = self.fl_anchor + (self.fl_em.predict(self._em_inputs(theta)) - self.fl_em_ref)
+        for name, s in effects.items():
+            if name in self.fl_sig and s:
+                y = y + _interp_levels(self.fl_sig[name], float(s))
+        return y
 
     def _em_inputs(self, theta):
         c = self.conditions
@@ -435,8 +660,7 @@ class TwinModel:
         y = self.anchor + (self.em.predict(self._em_inputs(theta)) - self.em_ref)
         for name, s in effects.items():
             if name in self.sig and s:
-                s_sig, delta = self.sig[name]
-                y = y + (float(s) / s_sig) * delta
+                y = y + _interp_levels(self.sig[name], float(s))
         return y
 
     def predict(self, theta, effects=None):
@@ -457,6 +681,7 @@ class TwinModel:
             eff_obj = load_effects(c.spec(effects[kin_on[0]]), side="kinetics")[0]
         slope = float(theta.get("slope_pct_per_kj", 0.0))
         intercept = float(theta.get("intercept_pct", 0.0))
+        fl = self.flight_outputs(theta, effects) if self.flight_conditions else None
         for i, cid in enumerate(self.conditions["condition_id"]):
             v, f = y[i]
             out += [v, f]
@@ -469,6 +694,8 @@ class TwinModel:
                 else:
                     x = eff_obj.yield_pct(e_kin, f, t_s, slope, intercept)
                 out += list(np.asarray(x, float))
+            if cid in self.flight_conditions:
+                out += list(fl[i])
         return pd.Series(out, index=self.keys)
 
     def model_se(self, theta=None):
@@ -488,7 +715,21 @@ class TwinModel:
             for t in self.yield_times_min.get(cid, []):
                 out.append(abs(theta["slope_pct_per_kj"]) * t * 60.0 / 1000.0
                            * math.hypot(m * v * f * v_se, 0.5 * m * v * v * f_se))
+            if cid in self.flight_conditions:
+                out += list(self.fl_sd_cond[i] / math.sqrt(self.n_rep))
         return pd.Series(out, index=self.keys)
+
+    def flight_run_sd(self):
+        """One twin run's scatter of the impact observables per (condition, observable): the
+        part of a measured track's deviation that its within-record se does not see (a track is
+        one realisation of the chaotic motion). :func:`factory` adds it to the measured sd."""
+        rows, vals = [], []
+        for i, cid in enumerate(self.conditions["condition_id"]):
+            if cid in self.flight_conditions:
+                rows += [(cid, k) for k in self.flight_obs]
+                vals += list(self.fl_sd_cond[i])
+        return pd.Series(vals, index=pd.MultiIndex.from_tuples(
+            rows, names=["condition_id", "observable"]), dtype=float)
 
 
 def yield_times_of(dataset):
@@ -499,13 +740,33 @@ def yield_times_of(dataset):
             for cid, g in dataset.yields.groupby("condition_id", sort=False)}
 
 
-def factory(dataset, library=None, emulator=None, base=("restitution", "amplitude_m")):
-    """diagnose --model hook: the twin model for ``dataset``'s conditions and yield times."""
+def factory(dataset, library=None, emulator=None, base=("restitution", "amplitude_m"),
+            flights=True, flight_emulator=None):
+    """diagnose --model hook: the twin model for ``dataset``'s conditions and yield times, and
+    the observations it predicts (``observations``): the dataset's summary and yields, and with
+    ``flights`` the impact observables of its tracks that carry the jar (analysis.flights), their
+    sd the operator's within-record se combined with one twin run's scatter there."""
+    from analysis.diagnose import observations_from_dataset
+    from analysis.flights import FLIGHT_OBSERVABLES, dataset_flights
+    obs = observations_from_dataset(dataset)
+    fl_ids = []
+    if flights:
+        fl = dataset_flights(dataset)
+        if len(fl):
+            obs = pd.concat([obs, fl], ignore_index=True)
+            fl_ids = list(dict.fromkeys(fl["condition_id"]))
     m = TwinModel(dataset.conditions, yield_times_of(dataset), library=library,
-                  emulator=emulator, base=base)
+                  emulator=emulator, base=base, flight_conditions=fl_ids,
+                  flight_emulator=flight_emulator)
+    if fl_ids:
+        run_sd = m.flight_run_sd()
+        key = list(zip(obs["condition_id"], obs["observable"]))
+        add = np.array([run_sd.get(k, 0.0) for k in key])
+        obs["sd"] = np.hypot(obs["sd"].to_numpy(float), add)
+    noise = {"v_mean_m_s", "f_col_hz"} | (set(FLIGHT_OBSERVABLES) if fl_ids else set())
     return {"predict": m.predict, "base_params": m.base_params(), "effects": m.effects(),
-            "model_se": m.model_se(), "crn_correlation": 0.0,
-            "noise_observables": {"v_mean_m_s", "f_col_hz"}, "model": m}
+            "model_se": m.model_se(), "crn_correlation": 0.0, "observations": obs,
+            "noise_observables": noise, "model": m}
 
 
 def main(argv=None):
@@ -514,7 +775,19 @@ def main(argv=None):
     ap.add_argument("--replicates", type=int, default=2)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", default=str(SIGNATURE_DIR))
+    ap.add_argument("--flights", action="store_true",
+                    help="recompute the impact observables of the library's (and the "
+                    "calibration's) cached runs; no new twin runs")
     a = ap.parse_args(argv)
+    if a.flights and not a.build:
+        try:
+            summ = refresh_flights(a.out)
+        except (FileNotFoundError, ValueError) as exc:
+            print("analysis.twin_model: error: %s" % exc, file=sys.stderr)
+            return 2
+        from analysis.flights import FLIGHT_OBSERVABLES
+        print(summ[["label", "condition_id", *FLIGHT_OBSERVABLES]].round(4).to_string())
+        return 0
     if not a.build:
         summ, meta = load_library(a.out)
         print(summ.to_string())
@@ -524,7 +797,7 @@ def main(argv=None):
     except (RuntimeError, FileNotFoundError, ValueError) as exc:
         print("analysis.twin_model: error: %s" % exc, file=sys.stderr)
         return 2
-    piv = summ.pivot(index="condition_id", columns="label", values="dv_pct")
+    piv = top_level(summ).pivot(index="condition_id", columns="label", values="dv_pct")
     print(piv.round(2).to_string())
     return 0
 

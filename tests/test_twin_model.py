@@ -56,7 +56,9 @@ def test_library_has_every_dem_candidate_at_its_signature_strength(fake):
     dem = [c for c in twin_model.CANDIDATES if c.kind == "dem"]
     assert set(s["label"]) == {"none"} | {c.name for c in dem}
     for c in dem:
-        assert (s.loc[s["label"] == c.name, "strength"] == c.s_max).all()
+        got = sorted(set(s.loc[s["label"] == c.name, "strength"]))
+        assert got == pytest.approx([fr * c.s_max for fr in c.signature_levels])
+        assert (s["label"] == c.name).sum() == 8 * len(c.signature_levels)
     assert (s["n"] == 4).all()
     assert (fake["root"] / "lib" / "signatures.png").stat().st_size > 1000
     page = (fake["root"] / "lib" / "README.md").read_text()
@@ -70,14 +72,21 @@ def test_model_reproduces_anchor_and_signatures(fake):
     for cid in m.conditions["condition_id"]:
         assert p0[(cid, "v_mean_m_s")] == pytest.approx(s.loc[("none", cid), "v_mean_m_s"],
                                                          rel=1e-9)
-    c = twin_model.candidates()["jar_compliance"]
-    full = m.predict(THETA, {"jar_compliance": c.s_max})
-    half = m.predict(THETA, {"jar_compliance": 0.5 * c.s_max})
+    c = twin_model.candidates()["viscoelastic_restitution"]
+    s = fake["summ"].set_index(["label", "strength", "condition_id"])
+    full = m.predict(THETA, {"viscoelastic_restitution": c.s_max})
+    half = m.predict(THETA, {"viscoelastic_restitution": 0.5 * c.s_max})
+    q = m.predict(THETA, {"viscoelastic_restitution": 0.25 * c.s_max})
+    tq = m.predict(THETA, {"viscoelastic_restitution": 0.75 * c.s_max})
     for cid in m.conditions["condition_id"]:
-        v_lib = s.loc[("jar_compliance", cid), "v_mean_m_s"]
+        v_lib = s.loc[("viscoelastic_restitution", c.s_max, cid), "v_mean_m_s"]
+        v_half = s.loc[("viscoelastic_restitution", 0.5 * c.s_max, cid), "v_mean_m_s"]
+        v0 = p0[(cid, "v_mean_m_s")]
         assert full[(cid, "v_mean_m_s")] == pytest.approx(v_lib, rel=1e-9)
-        assert half[(cid, "v_mean_m_s")] == pytest.approx(
-            0.5 * (v_lib + p0[(cid, "v_mean_m_s")]), rel=1e-9)
+        assert half[(cid, "v_mean_m_s")] == pytest.approx(v_half, rel=1e-9)
+        # piecewise linear between the levels (0, s_max / 2, s_max)
+        assert q[(cid, "v_mean_m_s")] == pytest.approx(0.5 * (v0 + v_half), rel=1e-9)
+        assert tq[(cid, "v_mean_m_s")] == pytest.approx(0.5 * (v_half + v_lib), rel=1e-9)
 
 
 def test_base_parameters_move_the_prediction_like_the_fake_twin(fake):
@@ -214,3 +223,126 @@ def test_hidden_demo_bad_effect_leaves_the_previous_demo(tmp_path, capsys):
     assert "unknown effect" in capsys.readouterr().err
     assert (out / "report.md").read_text() == "previous"
     assert [p.name for p in tmp_path.iterdir()] == ["demo"]      # no staging folder left
+
+
+# ------------------------------------------------------------------ impact observables (flights)
+
+FL_ANCHOR = {"e_app": 0.30, "v_in_m_s": 4.0, "impact_phase_rad": 2.3, "jar_amplitude_m": 0.0127,
+             "vy_rms_m_s": 0.006}
+
+
+def flight_library(fake, root):
+    """The fake library with made-up impact observables (the fake twin writes no trajectory):
+    anchor FL_ANCHOR, every effect level moving e_app by -0.1 x (strength / s_max)^2 (a curved
+    response) and jar_compliance the jar amplitude by +5 % x strength / s_max; per-run sd 0.01 on
+    e_app. A design table where e_app = 0.9 restitution and the jar amplitude = the drive."""
+    from analysis.flights import FLIGHT_OBSERVABLES
+    summ, meta = fake["library"]
+    summ = summ.copy()
+    smax = {c.name: c.s_max for c in twin_model.CANDIDATES}
+    for k in FLIGHT_OBSERVABLES:
+        summ[k] = FL_ANCHOR[k]
+        summ[k + "_sd"] = 0.0
+    summ["e_app_sd"] = 0.01
+    rel = np.array([r.strength / smax[r.label] if r.label != "none" else 0.0
+                    for r in summ.itertuples()])
+    summ["e_app"] = FL_ANCHOR["e_app"] - 0.1 * rel ** 2
+    jc = (summ["label"] == "jar_compliance").to_numpy()
+    summ.loc[jc, "jar_amplitude_m"] = FL_ANCHOR["jar_amplitude_m"] * (1 + 0.05 * rel[jc])
+    rng = np.random.default_rng(1)
+    n = 40
+    d = pd.DataFrame({"restitution": rng.uniform(0.2, 0.5, n),
+                      "static_friction": rng.uniform(0.3, 0.7, n),
+                      "rolling_friction": rng.uniform(0.1, 0.5, n),
+                      "amplitude_m": rng.uniform(0.010, 0.016, n),
+                      "frequency_hz": rng.choice([22.5, 25.0, 27.5, 30.0], n),
+                      "ball_diameter_m": rng.choice([0.0175, 0.0206], n),
+                      "motion_mode": "end_to_end"})
+    d["e_app"] = 0.9 * d["restitution"]
+    d["v_in_m_s"] = 4.0
+    d["impact_phase_rad"] = 2.3
+    d["jar_amplitude_m"] = d["amplitude_m"]
+    d["vy_rms_m_s"] = 0.006
+    root.mkdir(parents=True, exist_ok=True)
+    d.to_csv(root / twin_model.DESIGN_FLIGHTS_FILE, index=False)
+    em = twin_model.flight_emulator(root)
+    return (summ, meta), em
+
+
+def test_flight_observables_in_the_model(fake, tmp_path):
+    lib, fem = flight_library(fake, tmp_path / "lib")
+    cond = fake["conditions"]
+    cids = list(cond["condition_id"])
+    m = twin_model.TwinModel(cond, {}, library=lib, emulator=fake["emulator"],
+                             flight_conditions=cids[:3], flight_emulator=fem)
+    p0 = m.predict(THETA, {})
+    assert len(p0) == 8 * 2 + 3 * 5
+    assert p0[(cids[0], "e_app")] == pytest.approx(0.30, abs=1e-9)
+    assert (cids[5], "e_app") not in p0.index
+    jc = twin_model.candidates()["jar_compliance"]
+    ve = twin_model.candidates()["viscoelastic_restitution"]
+    # the levels are exact, in between piecewise linear: at 3/4 s_max the mean of -0.025, -0.1
+    for fr, want in ((0.5, 0.275), (1.0, 0.2), (0.75, 0.3 - 0.0625)):
+        p = m.predict(THETA, {"viscoelastic_restitution": fr * ve.s_max})
+        assert p[(cids[1], "e_app")] == pytest.approx(want, abs=1e-9)
+    # jar compliance has its own, denser levels: 0.75 s_max is one of them
+    p = m.predict(THETA, {"jar_compliance": 0.75 * jc.s_max})
+    assert p[(cids[1], "e_app")] == pytest.approx(0.3 - 0.1 * 0.75 ** 2, abs=1e-9)
+    p = m.predict(THETA, {"jar_compliance": jc.s_max})
+    assert p[(cids[2], "jar_amplitude_m")] == pytest.approx(0.0127 * 1.05, rel=1e-9)
+    # base parameters act through the flights GP, as a difference
+    q = m.predict(dict(THETA, restitution=0.40, amplitude_m=0.0135), {})
+    assert q[(cids[0], "e_app")] - 0.30 == pytest.approx(0.9 * 0.05, abs=0.004)
+    assert q[(cids[0], "jar_amplitude_m")] == pytest.approx(0.0135, rel=2e-3)
+    # model noise: the anchor mean's se (one run's sd, floored, / sqrt(4)); one run's sd is
+    # the measured track's share (factory)
+    se = m.model_se()
+    assert se[(cids[0], "e_app")] == pytest.approx(0.01 / 2, rel=1e-9)
+    assert se[(cids[0], "vy_rms_m_s")] == pytest.approx(
+        twin_model.FLIGHT_SD_FLOORS["vy_rms_m_s"] / 2, rel=1e-9)
+    assert m.flight_run_sd()[(cids[2], "e_app")] == pytest.approx(0.01, rel=1e-9)
+    with pytest.raises(ValueError, match="not among the conditions"):
+        twin_model.TwinModel(cond, {}, library=lib, emulator=fake["emulator"],
+                             flight_conditions=["nowhere"], flight_emulator=fem)
+    with pytest.raises(ValueError, match="no impact observables"):
+        bare = (lib[0].drop(columns=["e_app"]), lib[1])
+        twin_model.TwinModel(cond, {}, library=bare, emulator=fake["emulator"],
+                             flight_conditions=cids[:1], flight_emulator=fem)
+
+
+def test_factory_reads_jar_tracks_and_diagnose_runs(fake, tmp_path):
+    """A dataset with a jar track: the factory adds its impact observables to the observations
+    and the model predicts exactly those keys; diagnose and add run on them."""
+    from analysis.diagnose import add_effect, diagnose
+    from analysis.measurements import Dataset
+    from tests.test_flights import impact_map_track
+    lib, fem = flight_library(fake, tmp_path / "lib")
+    cond = fake["conditions"][["condition_id", "frequency_hz", "ball_diameter_mm"]]
+    m = twin_model.TwinModel(cond, {}, library=lib, emulator=fake["emulator"])
+    mu = m.predict(THETA, {})
+    summ = pd.DataFrame({"condition_id": cond["condition_id"],
+                         "v_mean_m_s": mu.xs("v_mean_m_s", level=1).to_numpy(),
+                         "v_mean_sd_m_s": 0.03, "f_col_hz": mu.xs("f_col_hz", level=1).to_numpy(),
+                         "f_col_sd_hz": 1.0})
+    tr, _ = impact_map_track(e=0.3, frequency_hz=25.0)
+    ds = Dataset(name="jar", description="", source="test", velocity_frame="lab",
+                 conditions=cond, summary=summ, tracks={"f25_d20.6": tr})
+    prob = twin_model.factory(ds, library=lib, emulator=fake["emulator"], flight_emulator=fem)
+    obs = prob["observations"]
+    fl = obs[obs["condition_id"].eq("f25_d20.6") & obs["observable"].eq("e_app")]
+    assert len(obs) == 16 + 5 and len(fl) == 1
+    from analysis.flights import dataset_flights
+    own = dataset_flights(ds).set_index("observable").loc["e_app", "sd"]
+    assert fl["sd"].iloc[0] == pytest.approx(np.hypot(own, 0.01), rel=1e-9)
+    assert set(prob["noise_observables"]) >= {"e_app", "jar_amplitude_m"}
+    assert set(map(tuple, obs[["condition_id", "observable"]].to_numpy())) == \
+        set(prob["predict"](THETA, {}).index)
+    d = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
+                 model_se=prob["model_se"], crn_correlation=0.0,
+                 noise_observables=prob["noise_observables"], conditions=cond)
+    assert len(d.table) == len(prob["effects"])
+    a = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], "jar_compliance",
+                   model_se=prob["model_se"])
+    assert np.isfinite(a.staircase["chi2_dof"]).all()
+    no = twin_model.factory(ds, library=lib, emulator=fake["emulator"], flights=False)
+    assert len(no["observations"]) == 16

@@ -36,14 +36,15 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
     ds = load_dataset(PAPER_TABLE3_DIR)
     prob = twin_model.factory(ds)
     model = prob["model"]
-    diag = diagnose(prob["predict"], ds, prob["base_params"], prob["effects"],
+    obs = prob.get("observations", ds)
+    diag = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
                     model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
-                    noise_observables=prob["noise_observables"])
+                    noise_observables=prob["noise_observables"], conditions=ds.conditions)
     say(diag.verdict)
     name = add or diag.best
     added = None
     if name:
-        added = add_effect(prob["predict"], ds, prob["base_params"], prob["effects"], name,
+        added = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], name,
                            model_se=prob["model_se"])
         say(added.summary())
     tmp = out_dir.with_name("." + out_dir.name + ".tmp")
