@@ -92,7 +92,7 @@ hidden-demo: setup
 	$(VPY) -m analysis.hidden_demo
 
 bench-hidden: setup
-	$(VPY) -m analysis.hidden_suite --noise-seeds 5 --fresh
+	$(VPY) -m analysis.hidden_suite --noise-seeds 5 --fresh --also-without-tracks
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv

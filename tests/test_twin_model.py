@@ -183,6 +183,16 @@ def test_suite_resumes_and_summarises(fake, tmp_path):
     assert summ["n_null_datasets"] == 2 and summ["n_effect_datasets"] == 2
     assert (tmp_path / "suite" / "README.md").read_text().count("|") > 10
     assert (tmp_path / "suite" / "confusion.png").exists()
+    # the page compares with a run without jar tracks (the fake twin has none: same figures)
+    rows0 = hidden_suite.run_suite(tmp_path / "suite" / "without_tracks",
+                                   **dict(kw, flights=False))
+    summ0 = hidden_suite.write_report(rows0, tmp_path / "suite" / "without_tracks")
+    hidden_suite._append_comparison(tmp_path / "suite" / "README.md", summ, summ0,
+                                    hidden_suite.per_effect(rows), hidden_suite.per_effect(rows0))
+    page = (tmp_path / "suite" / "README.md").read_text()
+    assert "## With and without the jar tracks" in page
+    assert "| decoy significant | %d | %d |" % (summ["decoy_significant"],
+                                               summ0["decoy_significant"]) in page
 
 
 def test_hidden_demo_end_to_end_on_the_fake(fake, tmp_path):
