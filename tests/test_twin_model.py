@@ -356,3 +356,18 @@ def test_factory_reads_jar_tracks_and_diagnose_runs(fake, tmp_path):
     assert np.isfinite(a.staircase["chi2_dof"]).all()
     no = twin_model.factory(ds, library=lib, emulator=fake["emulator"], flights=False)
     assert len(no["observations"]) == 16
+
+
+def test_library_flags_runs_in_the_late_impact_pattern():
+    """A run meeting the wall at < 60 % of the anchor's approach speed is 'late'; a level whose
+    seeds differ is counted (mixed), never averaged silently."""
+    rows = []
+    for lab, s, vin in (("none", 0.0, [4.0, 4.1]), ("jar_compliance", 0.5, [4.0, 1.2]),
+                        ("jar_compliance", 1.0, [1.1, 1.3])):
+        for k, v in enumerate(vin):
+            rows.append({"label": lab, "strength": s, "condition_id": "c", "seed": k,
+                         "v_mean_m_s": 2.0 + 0.1 * (v < 2), "f_col_hz": 50.0, "v_in_m_s": v})
+    s = twin_model.summarise_library(pd.DataFrame(rows)).set_index(["label", "strength"])
+    assert s.loc[("none", 0.0), "n_late_pattern"] == 0
+    assert s.loc[("jar_compliance", 0.5), "n_late_pattern"] == 1
+    assert s.loc[("jar_compliance", 1.0), "n_late_pattern"] == 2
