@@ -21,7 +21,10 @@ an emulator assembled from real twin runs, each part justified by what the twin 
   close to linear: the restitution drop k, the arm curvature, (f_0/f_n)^2 for the mount's
   stiffness, h^2 for the powder layer's absorbed energy, the extra rolling friction, the drag
   multiplier; one level was not enough: jar compliance's resonance gain and the impact
-  observables bend). Effects add;
+  observables bend). Effects add. Jar compliance makes the flight bistable (the ball meets the
+  wall at ~4 or ~1 m/s, depending on strength and start): each library run is classed by its
+  impact pattern and a condition whose measured track is in the 'late' pattern takes only the
+  late runs (:func:`impact_patterns`, :func:`_levels`), so two motions are never averaged;
 * **impact observables** (when the dataset has tracks with the jar, :mod:`analysis.flights`:
   apparent restitution, approach speed, impact phase, jar amplitude, vertical rms speed per
   condition): anchor and signatures read from the library's recordings by the same operator,
@@ -252,6 +255,13 @@ def summarise_library(runs: pd.DataFrame) -> pd.DataFrame:
         n_late = late.groupby([runs["label"], runs["strength"], runs["condition_id"]]).sum()
         key = pd.MultiIndex.from_frame(s[["label", "strength", "condition_id"]])
         s["n_late_pattern"] = n_late.reindex(key).to_numpy().astype(int)
+        cols = ["v_mean_m_s", "f_col_hz"] + [k for k in FLIGHT_OBSERVABLES if k in runs.columns]
+        pat = np.where(late, "late", "normal")
+        for p in ("normal", "late"):
+            m = runs[pat == p].groupby(["label", "strength", "condition_id"])[cols].mean()
+            m = m.reindex(key)
+            for c in cols:
+                s[c + "@" + p] = m[c].to_numpy()
     return s
 
 
@@ -492,24 +502,51 @@ def flight_emulator(lib_dir=SIGNATURE_DIR, random_state=0):
     return em.fit(d[names], d[list(FLIGHT_OBSERVABLES)])
 
 
-def _levels(d, cids, cols, anchor):
-    """(strengths, changes) of one effect's library rows: strengths (k,) ascending with 0
-    prepended, changes (k, n_cond, n_cols) from the anchor (0 at strength 0; NaN -> 0)."""
+def _levels(d, cids, cols, anchor, patterns=None):
+    """One effect's signature per condition: a list over ``cids`` of (strengths (k,), changes
+    (k, n_cols) from the anchor), strengths ascending.
+
+    With the per-pattern columns of :func:`summarise_library` (``<col>@normal``,
+    ``<col>@late``), each condition takes only the library runs in its own impact pattern
+    (``patterns[cid]``, default 'normal'): a level whose runs are all in the other pattern is
+    left out, so two steady motions are never averaged. The normal branch starts at (0, 0); a
+    late branch (the anchor has none) holds its levels only, extended flat below the first and
+    linearly above the last. Without such columns: all runs, one branch from (0, 0).
+    """
+    patterns = patterns or {}
     levels = sorted(float(x) for x in d["strength"].unique())
-    deltas = [np.zeros_like(anchor)]
-    for lv in levels:
-        dd = d[d["strength"] == lv].set_index("condition_id").loc[cids]
-        deltas.append(np.nan_to_num(dd[cols].to_numpy(float) - anchor))
-    return np.array([0.0] + levels), np.array(deltas)
+    by = {lv: d[d["strength"] == lv].set_index("condition_id") for lv in levels}
+    split = all(c + "@normal" in d.columns for c in cols)
+    out = []
+    for i, cid in enumerate(cids):
+        pat = patterns.get(cid, "normal") if split else "normal"
+        xs, ds = ([0.0], [np.zeros(len(cols))]) if pat == "normal" else ([], [])
+        for lv in levels:
+            row = by[lv].loc[cid]
+            v = (row[[c + "@" + pat for c in cols]] if split else row[cols]).to_numpy(float)
+            if split and not np.all(np.isfinite(v[:1])):
+                continue                      # no run of this level in this pattern
+            xs.append(lv)
+            ds.append(np.nan_to_num(v - anchor[i]))
+        if not xs:                            # the effect never reaches this pattern here
+            xs, ds = [0.0], [np.zeros(len(cols))]
+        out.append((np.array(xs), np.array(ds)))
+    return out
 
 
 def _interp_levels(sig, s):
-    """Change at strength ``s``: piecewise linear through the levels, the last segment
-    extended beyond the top."""
-    xs, ds = sig
-    k = int(np.clip(np.searchsorted(xs, s) - 1, 0, len(xs) - 2))
-    w = (s - xs[k]) / (xs[k + 1] - xs[k])
-    return (1.0 - w) * ds[k] + w * ds[k + 1]
+    """(n_cond, n_cols) change at strength ``s``: per condition piecewise linear through its
+    levels, the last segment extended beyond the top, flat below a late branch's first level."""
+    rows = []
+    for xs, ds in sig:
+        if len(xs) == 1 or s <= xs[0]:
+            rows.append(ds[0] if len(xs) == 1 or xs[0] > 0 else
+                        ds[0] + (s - xs[0]) / (xs[1] - xs[0]) * (ds[1] - ds[0]))
+            continue
+        k = int(np.clip(np.searchsorted(xs, s) - 1, 0, len(xs) - 2))
+        w = (s - xs[k]) / (xs[k + 1] - xs[k])
+        rows.append((1.0 - w) * ds[k] + w * ds[k + 1])
+    return np.array(rows)
 
 
 class TwinModel:
@@ -534,12 +571,16 @@ class TwinModel:
         chaotic motion: its own within-record se does not see the run-to-run part).
     flight_emulator : fitted GPEmulator of the impact observables or None (default
         :func:`flight_emulator`)
+    patterns : dict condition_id -> 'normal' or 'late', the impact pattern the measured ball is
+        in (from its jar track, :func:`impact_patterns`); the signatures there use only library
+        runs in that pattern (jar compliance makes the flight bistable). Default: 'normal'.
     """
 
     def __init__(self, conditions, yield_times_min=None, library=None, emulator=None,
                  base=("restitution", "amplitude_m"), flight_conditions=(),
-                 flight_emulator=None):
+                 flight_emulator=None, patterns=None):
         summ, meta = library if library is not None else load_library()
+        self.patterns = dict(patterns or {})
         self.theta_ref = dict(meta["theta_ref"])
         self.base_names = tuple(base)
         unknown = set(self.base_names) - set(self.theta_ref)
@@ -579,7 +620,8 @@ class TwinModel:
             d = summ[summ["label"] == c.name]
             if not len(d):
                 raise ValueError("the signature library has no runs of %s" % c.name)
-            self.sig[c.name] = _levels(d, cids, ["v_mean_m_s", "f_col_hz"], self.anchor)
+            self.sig[c.name] = _levels(d, cids, ["v_mean_m_s", "f_col_hz"], self.anchor,
+                                       self.patterns)
         self.em = emulator if emulator is not None else base_emulator()
         X = self._em_inputs(self.theta_ref)
         self.em_ref = self.em.predict(X)
@@ -623,7 +665,7 @@ class TwinModel:
             if c.kind != "dem":
                 continue
             self.fl_sig[c.name] = _levels(summ[summ["label"] == c.name], cids, fo,
-                                          self.fl_anchor)
+                                          self.fl_anchor, self.patterns)
         self.fl_em = emulator if emulator is not None else flight_emulator()
         self.fl_em_ref = self.fl_em.predict(self._em_inputs(self.theta_ref))
 
@@ -767,6 +809,18 @@ def yield_times_of(dataset):
             for cid, g in dataset.yields.groupby("condition_id", sort=False)}
 
 
+def impact_patterns(flights, library=None):
+    """condition_id -> 'late' or 'normal': the impact pattern of each measured track (its
+    approach speed against LATE_V_IN_FRAC x the library anchor's there)."""
+    summ, _ = library if library is not None else load_library()
+    a = summ[summ["label"] == "none"].set_index("condition_id")
+    if "v_in_m_s" not in a.columns:
+        return {}
+    v = flights[flights["observable"] == "v_in_m_s"].set_index("condition_id")["value"]
+    return {cid: ("late" if x < LATE_V_IN_FRAC * float(a.loc[cid, "v_in_m_s"]) else "normal")
+            for cid, x in v.items() if cid in a.index}
+
+
 def factory(dataset, library=None, emulator=None, base=("restitution", "amplitude_m"),
             flights=True, flight_emulator=None):
     """diagnose --model hook: the twin model for ``dataset``'s conditions and yield times, and
@@ -782,9 +836,10 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
         if len(fl):
             obs = pd.concat([obs, fl], ignore_index=True)
             fl_ids = list(dict.fromkeys(fl["condition_id"]))
+    patterns = impact_patterns(fl, library) if fl_ids else {}
     m = TwinModel(dataset.conditions, yield_times_of(dataset), library=library,
                   emulator=emulator, base=base, flight_conditions=fl_ids,
-                  flight_emulator=flight_emulator)
+                  flight_emulator=flight_emulator, patterns=patterns)
     if fl_ids:
         run_sd = m.flight_run_sd()
         key = list(zip(obs["condition_id"], obs["observable"]))
@@ -793,7 +848,7 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
     noise = {"v_mean_m_s", "f_col_hz"} | (set(FLIGHT_OBSERVABLES) if fl_ids else set())
     return {"predict": m.predict, "base_params": m.base_params(), "effects": m.effects(),
             "model_se": m.model_se(), "crn_correlation": 0.0, "observations": obs,
-            "noise_observables": noise, "model": m}
+            "noise_observables": noise, "model": m, "patterns": patterns}
 
 
 def main(argv=None):

@@ -371,3 +371,27 @@ def test_library_flags_runs_in_the_late_impact_pattern():
     assert s.loc[("none", 0.0), "n_late_pattern"] == 0
     assert s.loc[("jar_compliance", 0.5), "n_late_pattern"] == 1
     assert s.loc[("jar_compliance", 1.0), "n_late_pattern"] == 2
+
+
+def test_signatures_follow_the_measured_impact_pattern():
+    """Per-pattern library columns: a condition measured in the 'late' pattern takes only the
+    late runs (flat below the first late level), a normal one only the normal runs from (0, 0);
+    two motions are never averaged."""
+    anchor = np.array([[2.0], [2.0]])
+    d = pd.DataFrame({"label": "x", "strength": [0.5, 0.5, 1.0, 1.0],
+                      "condition_id": ["a", "b", "a", "b"],
+                      "v_mean_m_s": [2.1, 2.1, 2.5, 2.5],
+                      "v_mean_m_s@normal": [2.1, 2.1, np.nan, 2.2],
+                      "v_mean_m_s@late": [np.nan, np.nan, 2.5, 2.6]})
+    sig = twin_model._levels(d, ["a", "b"], ["v_mean_m_s"], anchor, {"b": "late"})
+    assert list(sig[0][0]) == [0.0, 0.5]                  # a: normal runs only
+    assert list(sig[1][0]) == [1.0]                       # b: its late level only
+    y = twin_model._interp_levels(sig, 0.25)
+    assert y[0, 0] == pytest.approx(0.05) and y[1, 0] == pytest.approx(0.6)
+    y = twin_model._interp_levels(sig, 1.0)
+    assert y[0, 0] == pytest.approx(0.2) and y[1, 0] == pytest.approx(0.6)
+    # without the per-pattern columns: all runs, one branch
+    plain = twin_model._levels(d.drop(columns=["v_mean_m_s@normal", "v_mean_m_s@late"]),
+                               ["a", "b"], ["v_mean_m_s"], anchor, {"b": "late"})
+    assert list(plain[1][0]) == [0.0, 0.5, 1.0]
+    assert twin_model._interp_levels(plain, 0.75)[1, 0] == pytest.approx(0.3)
