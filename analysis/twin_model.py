@@ -671,11 +671,15 @@ class TwinModel:
 
     def flight_outputs(self, theta, effects=None):
         """(n_cond, 5) impact observables at ``theta`` with DEM effects at their strengths."""
-        effects = effects or {}
-        y = self.fl_anchor + (self.fl_em.predict(self._em_inputs(theta)) - self.fl_em_ref)
-        for name, s in effects.items():
-            if name in self.fl_sig and s:
-                y = y + _interp_levels(self.fl_sig[name], float(s))
+        return self._assemble(self.fl_anchor, self.fl_em, self.fl_em_ref, self.fl_sig, theta,
+                              effects)
+
+    def _assemble(self, anchor, em, em_ref, sigs, theta, effects):
+        """anchor + GP(theta) - GP(theta_ref) + the interpolated signatures of the effects."""
+        y = anchor + (em.predict(self._em_inputs(theta)) - em_ref)
+        for name, s in (effects or {}).items():
+            if name in sigs and s:
+                y = y + _interp_levels(sigs[name], float(s))
         return y
 
     def _em_inputs(self, theta):
@@ -725,12 +729,7 @@ class TwinModel:
 
     def dem_outputs(self, theta, effects=None):
         """(n_cond, 2) array of v_mean, f_col at ``theta`` with DEM effects at their strengths."""
-        effects = effects or {}
-        y = self.anchor + (self.em.predict(self._em_inputs(theta)) - self.em_ref)
-        for name, s in effects.items():
-            if name in self.sig and s:
-                y = y + _interp_levels(self.sig[name], float(s))
-        return y
+        return self._assemble(self.anchor, self.em, self.em_ref, self.sig, theta, effects)
 
     def predict(self, theta, effects=None):
         """Series indexed by (condition_id, observable): v_mean_m_s, f_col_hz and the yields."""
