@@ -172,7 +172,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     track_tables, twin_flights = {}, {}
     if tracks:
         from analysis.config import RUNS_DIR
-        from analysis.flights import FlightError, recording_flights
+        from analysis.twin_model import run_flights
         from analysis.observe import camera_track
         root = Path(runs_dir or RUNS_DIR)
         have = all((root / str(r) / "trajectory.csv").is_file() for r in t["run_id"])
@@ -183,14 +183,9 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
             for c in ("x_m", "y_m", "jar_x_m"):
                 tr[c] = tr[c] + track_noise_m * rng.standard_normal(len(tr))
             track_tables[cid] = tr[["t_s", "x_m", "y_m", "jar_x_m"]]
-            vals = []
-            for rid in g["run_id"]:
-                try:
-                    vals.append(recording_flights(root / str(rid)).values)
-                except FlightError:
-                    pass
-            if vals:
-                twin_flights[cid] = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
+            fl = run_flights(list(g["run_id"]), root).dropna()
+            if len(fl):
+                twin_flights[cid] = {k: float(fl[k].mean()) for k in fl.columns if k != "run_id"}
     ds = Dataset(name=name, description=meta["description"], source=meta["source"],
                  velocity_frame="lab", conditions=cond, summary=summary, yields=yields,
                  meta=meta, tracks=track_tables)
