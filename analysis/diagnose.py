@@ -36,7 +36,9 @@ The method
      would absorb; ``absorbed_frac = 1 - |g_perp|^2 / |g_k|^2``;
    * score test ``S = (g_perp . r)^2 / |g_perp|^2`` (r = whitened residual, measured - model), the
      linearised strength ``s_lin = null + (g_perp . r) / |g_perp|^2 +- 1 / |g_perp|``;
-   * joint fit of base parameters and strength (bounded), chi2 gain ``delta_chi2`` and its
+   * joint fit of base parameters and strength (bounded; started from s_lin, from near null
+     and from the best local minima of a chi2 scan over the strength's range, the best optimum
+     kept: an interpolated response can have several minima), chi2 gain ``delta_chi2`` and its
      covariance (Gauss-Newton, ``(J_full^T J_full)^-1``): strength +- se, max |correlation| of
      the strength with a base parameter; BIC gain ``delta_chi2 - ln n``;
    * identifiability: ``footprint`` = norm of the projected, whitened change of all predictions
@@ -95,6 +97,8 @@ from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAUL
                                    Dataset, measurement_table)
 
 EFFECT_KINDS = ("dem", "kinetics")
+#: strengths scanned (evenly over each effect's range) for the fit's starting points
+SCAN_POINTS = 13
 _OBS_WORDS = {"v_mean_m_s": "speed", "f_col_hz": "collision frequency", "yield_pct": "yield"}
 
 
@@ -447,6 +451,37 @@ class _Problem:
                          at_bound=[])
 
 
+def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
+    """Starting strengths for the fit of effect ``name``: the ``n_best`` points of lowest
+    profile chi2 on an even grid of ``n_scan`` strengths over its range, null excluded; local
+    minima only, and none within half a grid step of ``exclude``. The base parameters are
+    profiled out linearly: the whitened residual at (``theta``, strength) with its component
+    along ``J`` (the whitened Jacobian of the base parameters at ``theta``) removed, so a
+    calibration that absorbed part of the effect does not hide a distant minimum."""
+    e = prob.effects[name]
+    n_scan = SCAN_POINTS if n_scan is None else int(n_scan)
+    grid = np.linspace(e.lower, e.upper, n_scan)
+    grid = grid[np.abs(grid - e.null) > 1e-12 * max(abs(e.upper - e.lower), 1e-300)]
+    if not len(grid):
+        return []
+    J = np.zeros((prob.n, 0)) if J is None else np.asarray(J, float)
+    chi2 = np.array([float(np.sum(_project_out(J, (prob.mu(theta, {name: g}) - prob.y)
+                                                / prob.sigma) ** 2)) for g in grid])
+    step = (e.upper - e.lower) / max(n_scan - 1, 1)
+    out = []
+    for i in np.argsort(chi2):
+        left = chi2[i - 1] if i > 0 else np.inf
+        right = chi2[i + 1] if i + 1 < len(grid) else np.inf
+        if chi2[i] > min(left, right):
+            continue                                    # not a local minimum of the scan
+        if any(abs(grid[i] - x) < 0.5 * step for x in list(exclude) + out):
+            continue
+        out.append(float(grid[i]))
+        if len(out) == n_best:
+            break
+    return out
+
+
 def _project_out(J, v):
     """Component of v orthogonal to the columns of J (least squares), and the absorbed part."""
     if J.size == 0:
@@ -565,10 +600,13 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
             score = 0.0
         start = float(np.clip(s_lin, e.lower, e.upper))
         fit = prob.fit(theta_c, effect=name, start_strength=start)
-        if start != e.null:   # also start from null; keep the better optimum
-            fit0 = prob.fit(theta_c, effect=name, start_strength=e.null + 0.1 * h)
-            if fit0.chi2 < fit.chi2:
-                fit = fit0
+        # also start from null and from the best points of a scan over the strength's range
+        # (a library-interpolated response can have several minima); keep the best optimum
+        others = [e.null + 0.1 * h] if start != e.null else []
+        for s0 in others + _scan_starts(prob, theta_c, name, J, exclude=(start,)):
+            f0 = prob.fit(theta_c, effect=name, start_strength=s0)
+            if f0.chi2 < fit.chi2:
+                fit = f0
         fits[name] = fit
         d = max(cal.chi2 - fit.chi2, 0.0)
         dof_after = max(fit.dof, 1)
@@ -792,6 +830,7 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
     theta_c = {k: before.params[k] for k in theta0}
     starts = [0.5 * (e.null + e.far) if start_strength is None else start_strength,
               e.null + 0.05 * (e.far - e.null)]
+    starts += _scan_starts(prob, theta_c, name, before.jac.to_numpy(), exclude=starts)
     after = min((prob.fit(theta_c, effect=name, start_strength=s) for s in starts),
                 key=lambda f: f.chi2)
     stages = [("baseline", baseline, 0), ("calibrated", before, len(prob.base)),

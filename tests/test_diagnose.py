@@ -319,3 +319,43 @@ def test_noise_in_a_few_observables_does_not_drown_a_clean_signature():
     t = d.table.set_index("effect")
     assert t.loc["ball_spin", "identifiable"] and d.best == "ball_spin"
     assert not t.loc[DECOY, "identifiable"]
+
+
+def _lumpy(s):
+    """A response with a false minimum: up to 1 at s = 0.2, back to 0 at 0.4, flat to 0.7, then
+    up to 3.5 at 0.9 (like a library-interpolated response through a change of motion)."""
+    return float(np.interp(s, [0.0, 0.2, 0.4, 0.7, 0.9, 1.0], [0.0, 1.0, 0.0, 0.0, 3.5, 3.5]))
+
+
+def test_a_distant_minimum_of_the_strength_is_found():
+    """The local fits (from s_lin and from near null) end in the false minimum near 0.2 or on
+    the flat part; the scan over the range starts one near the truth (0.85)."""
+    def lumpy_toy(theta, eff):
+        y = toy(theta, {k: v for k, v in eff.items() if k != "lumpy"})
+        v = y.to_numpy().reshape(-1, 2).copy()
+        v[:, 0] *= 1 - 0.05 * _lumpy(eff.get("lumpy", 0.0)) * X * Y
+        return pd.Series(v.ravel(), index=IDX)
+
+    rng = np.random.default_rng(11)
+    truth = lumpy_toy(TRUE, {"lumpy": 0.85}).to_numpy()
+    sd = np.where(IS_V, V_SD * truth, F_SD)
+    obs = pd.DataFrame({"condition_id": IDX.get_level_values(0),
+                        "observable": IDX.get_level_values(1),
+                        "value": truth + rng.normal(0.0, sd), "sd": sd})
+    effects = EFFECTS + [Effect("lumpy", 0.0, 1.0)]
+    d = diagnose(lumpy_toy, obs, BASE, effects, conditions=CONDS)
+    row = d.table.set_index("effect").loc["lumpy"]
+    assert d.best == "lumpy"
+    assert abs(row["strength"] - 0.85) < 0.02
+    a = add_effect(lumpy_toy, obs, BASE, effects, "lumpy")
+    assert abs(a.strength - 0.85) < 0.02
+    assert a.after.p_value > 1e-3
+    # without the scan the fit stops at the false minimum
+    import analysis.diagnose as dg
+    old = dg.SCAN_POINTS
+    try:
+        dg.SCAN_POINTS = 0
+        a0 = add_effect(lumpy_toy, obs, BASE, effects, "lumpy")
+    finally:
+        dg.SCAN_POINTS = old
+    assert a0.after.chi2 > a.after.chi2 + 25
