@@ -8,7 +8,10 @@ Input
       condition_id, observable, mean, sd, n_replicates [, time_min]
 
   ``observable`` is a measured column name: ``v_mean_m_s``, ``f_col_hz`` or ``yield_pct`` (the
-  latter with ``time_min``). ``mean`` and ``sd`` are the mean and the standard deviation OVER
+  latter with ``time_min``), or an impact observable of a track that carries the jar
+  (``e_app``, ``v_in_m_s``, ``impact_phase_rad``, ``jar_amplitude_m``, ``vy_rms_m_s``: see
+  :mod:`analysis.flights`; the measured side is read from the dataset's tracks, and its sigma
+  also holds one twin run's sd, since a track is one realisation of the chaotic motion). ``mean`` and ``sd`` are the mean and the standard deviation OVER
   REPLICATE RUNS of the twin (runs that differ only in their seed / initial state), ``n_replicates``
   how many runs. The twin is chaotic: replicates scatter by 1-3 % in mean speed (DESIGN.md), as
   much as many physical effects move it, so the model's own noise enters every uncertainty.
@@ -48,6 +51,7 @@ import pandas as pd
 from analysis.atomic_dir import publish_dir, staging_dir
 from scipy import signal, stats
 
+from analysis.flights import FLIGHT_OBSERVABLES, dataset_flights
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
                                    Dataset, DatasetError, load_dataset, measurement_table)
 
@@ -58,7 +62,14 @@ DEFAULT_MODEL_YIELD_SD_PCT = 2.0
 
 #: plain-words names of observables
 OBSERVABLE_WORDS = {"v_mean_m_s": "speed", "f_col_hz": "collision frequency",
-                    "yield_pct": "yield"}
+                    "yield_pct": "yield", "e_app": "apparent restitution at the end walls",
+                    "v_in_m_s": "approach speed at the end walls",
+                    "impact_phase_rad": "jar phase at impact",
+                    "jar_amplitude_m": "jar amplitude", "vy_rms_m_s": "vertical rms speed"}
+#: impact observables (analysis.flights) are reported as differences in these units
+#: (scale factor from SI, unit)
+ABSOLUTE_UNITS = {"e_app": (1.0, ""), "v_in_m_s": (1.0, " m/s"), "impact_phase_rad": (1.0, " rad"),
+                  "jar_amplitude_m": (1e3, " mm"), "vy_rms_m_s": (1e3, " mm/s")}
 
 PREDICTION_COLUMNS = ("condition_id", "observable", "mean", "sd", "n_replicates")
 
@@ -136,6 +147,11 @@ class Comparison:
                 lines.append("%s: %s at %g min %.1f points %s (%.1f sigma)"
                              % (r["label"], word, r["time_min"], abs(r["residual"]), side,
                                 abs(r["z"])))
+            elif r["observable"] in ABSOLUTE_UNITS:
+                k, unit = ABSOLUTE_UNITS[r["observable"]]
+                lines.append("%s: %s %.3g%s %s (%.1f sigma; measured %.3g%s)"
+                             % (r["label"], word, k * abs(r["residual"]), unit, side,
+                                abs(r["z"]), k * r["measured"], unit))
             else:
                 lines.append("%s: %s %.1f %% %s (%.1f sigma)"
                              % (r["label"], word, abs(r["rel_residual_pct"]), side, abs(r["z"])))
@@ -261,7 +277,7 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
             default_model_f_col_sd_hz: float = DEFAULT_MODEL_F_COL_SD_HZ,
             default_model_yield_sd_pct: float = DEFAULT_MODEL_YIELD_SD_PCT,
             n_fitted_params: int = 0, n_phase_bins: int = 24,
-            pool_model_sd: bool = False) -> Comparison:
+            pool_model_sd: bool = False, flights: bool = True) -> Comparison:
     """Compare model predictions with a dataset, condition by condition.
 
     Parameters
@@ -283,6 +299,12 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
     pool_model_sd : bool
         pool the twin's replicate sd per observable over conditions (see
         :func:`model_standard_error`); recommended with 3 replicates and no bimodal condition
+    flights : bool
+        when the predictions hold impact observables (``analysis.flights.FLIGHT_OBSERVABLES``:
+        e_app, v_in_m_s, impact_phase_rad, jar_amplitude_m, vy_rms_m_s) and the dataset has
+        tracks that carry the jar (``jar_x_m``), compare those too: measured by
+        :func:`analysis.flights.dataset_flights`, their sigma also holding one twin run's sd
+        (a track is one realisation)
 
     Returns
     -------
@@ -303,6 +325,12 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
             "condition_id": y["condition_id"].to_numpy(), "observable": "yield_pct",
             "value": y["yield_pct"].to_numpy(float), "sd": ysd, "sd_default": ydef,
             "time_min": y["time_min"].to_numpy(float)})], ignore_index=True)
+    meas["one_realisation"] = False
+    if flights and pred["observable"].isin(FLIGHT_OBSERVABLES).any():
+        fl = dataset_flights(dataset)            # tracks carrying the jar (analysis.flights)
+        if len(fl):
+            fl = fl.assign(sd_default=False, time_min=np.nan, one_realisation=True)
+            meas = pd.concat([meas, fl], ignore_index=True)
 
     rows, missing = [], []
     cond = dataset.conditions.set_index("condition_id")
@@ -329,7 +357,9 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
             pr = summary_pred.loc[(cid, obs)]
             mean, msd, mse = float(pr["mean"]), float(pr["model_sd"]), float(pr["model_se"])
             nrep, mdef = float(pr["n_replicates"]), bool(pr["model_sd_default"])
-        sigma = math.hypot(m["sd"], mse)
+        # an impact observable of one measured track is one realisation of the chaotic motion:
+        # one run's scatter (model_sd) enters besides the record's own se
+        sigma = math.sqrt(m["sd"] ** 2 + mse ** 2 + (msd ** 2 if m["one_realisation"] else 0.0))
         resid = mean - m["value"]
         rows.append({
             "condition_id": cid, "label": dataset.condition_label(cid),
@@ -339,7 +369,9 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
             "measured_sd": m["sd"], "measured_sd_default": bool(m["sd_default"]),
             "model_mean": mean, "model_sd": msd, "n_replicates": nrep, "model_se": mse,
             "model_sd_default": mdef, "sigma": sigma, "residual": resid,
-            "rel_residual_pct": (100.0 * resid / m["value"] if m["value"] != 0 else np.nan),
+            "rel_residual_pct": (100.0 * resid / m["value"]
+                                 if m["value"] != 0 and obs not in ABSOLUTE_UNITS else np.nan),
+            "one_realisation": bool(m["one_realisation"]),
             "z": resid / sigma if sigma > 0 else np.nan})
     if not rows:
         raise PredictionError("predictions: no prediction matches a measured condition/observable")
@@ -456,14 +488,19 @@ def markdown_page(cmp: Comparison, dataset: Dataset, figures=()) -> str:
     if t["model_sd_default"].any():
         out.append("Twin replicate sd missing for %d row(s): default used." %
                    int(t["model_sd_default"].sum()))
+    if t.get("one_realisation", pd.Series(False, index=t.index)).any():
+        out.append("Impact observables (analysis.flights) come from one measured track each: "
+                   "their sigma also holds one twin run's sd; diff % is left out for them.")
     out += ["", "| condition | observable | measured | model (mean +- se, n) | diff % | z |",
             "|---|---|---|---|---|---|"]
     for _, r in t.iterrows():
         obs = r["observable"] + ("" if not np.isfinite(r["time_min"]) else
                                  " @ %g min" % r["time_min"])
-        out.append("| %s | %s | %.4g +- %.2g | %.4g +- %.2g (%d) | %+.1f | %+.2f |"
+        rel = ("%+.1f" % r["rel_residual_pct"] if np.isfinite(r["rel_residual_pct"])
+               else "-")
+        out.append("| %s | %s | %.4g +- %.2g | %.4g +- %.2g (%d) | %s | %+.2f |"
                    % (r["label"], obs, r["measured"], r["measured_sd"], r["model_mean"],
-                      r["model_se"], r["n_replicates"], r["rel_residual_pct"], r["z"]))
+                      r["model_se"], r["n_replicates"], rel, r["z"]))
     out.append("")
     for f in figures:
         out += ["![%s](%s)" % (Path(f).stem, Path(f).name), ""]

@@ -46,15 +46,12 @@ def secret_choice(secret_seed):
 
 def predictions_table(model, theta, effects=None):
     """compare-style predictions (condition_id, observable, mean, sd, n_replicates, time_min) of
-    the twin model; sd is the per-run sd (se * sqrt(n)). The impact observables of jar tracks
-    (analysis.flights) are left out: compare reads the summary and the yields."""
-    from analysis.flights import FLIGHT_OBSERVABLES
+    the twin model; sd is the per-run sd (se * sqrt(n)), for the impact observables of jar
+    tracks (analysis.flights) too."""
     mu = model.predict(theta, effects or {})
     se = model.model_se(theta)
     rows = []
     for (cid, obs), m in mu.items():
-        if obs in FLIGHT_OBSERVABLES:
-            continue
         t = np.nan
         if obs.startswith("yield_pct@"):
             t = float(obs.split("@")[1][:-3])
@@ -233,9 +230,7 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
                                 replicates=replicates, workers=workers, runner=runner,
                                 runs_dir=runs_dir, flights=bool(model.flight_conditions))
         n_fit = len(prob["base_params"]) + 1
-        from analysis.flights import FLIGHT_OBSERVABLES
-        cmp1 = compare(ds, pred[~pred["observable"].isin(FLIGHT_OBSERVABLES)],
-                       n_fitted_params=n_fit)
+        cmp1 = compare(ds, pred, n_fitted_params=n_fit)
         write_compare(cmp1, ds, out_dir / "compare_after_twin")
         # the staircase's chi2 is over diagnose's observations (impact observables included)
         chi2, dof = rerun_chi2(obs, pred, n_fit)

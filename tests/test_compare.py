@@ -1,4 +1,6 @@
 """Twin vs measurement comparison: uncertainty combination, words, phase folding, yields, CLI."""
+import math
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -227,3 +229,44 @@ def test_cli_writes_report(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unknown condition_id" in err
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_impact_observables_of_jar_tracks_are_compared():
+    """A track carrying the jar (exact impact map, e = 0.3) is read into impact observables;
+    a prediction at the truth agrees, one with e = 0.2 fails in plain words, and the sigma of
+    an impact observable holds one twin run's sd (a track is one realisation)."""
+    from tests.test_flights import impact_map_track
+    from analysis.flights import dataset_flights
+    tr, _ = impact_map_track(e=0.3, frequency_hz=25.0)
+    cond = pd.DataFrame({"condition_id": ["f25_d17.5"], "frequency_hz": [25.0],
+                         "ball_diameter_mm": [17.5]})
+    summ = pd.DataFrame({"condition_id": ["f25_d17.5"], "v_mean_m_s": [2.0],
+                         "v_mean_sd_m_s": [0.03], "f_col_hz": [50.0], "f_col_sd_hz": [1.0]})
+    ds = Dataset(name="jar", description="test", source="test", velocity_frame="lab",
+                 conditions=cond, summary=summ, tracks={"f25_d17.5": tr})
+    fl = dataset_flights(ds).set_index("observable")
+    base = [("f25_d17.5", "v_mean_m_s", 2.0, 0.02, 2), ("f25_d17.5", "f_col_hz", 50.0, 1.0, 2)]
+
+    def pred(e_app, run_sd=0.01):
+        rows = base + [("f25_d17.5", k, float(fl.loc[k, "value"]), 0.0, 2)
+                       for k in fl.index if k != "e_app"]
+        rows.append(("f25_d17.5", "e_app", e_app, run_sd, 2))
+        return pd.DataFrame(rows, columns=["condition_id", "observable", "mean", "sd",
+                                           "n_replicates"])
+
+    good = compare(ds, pred(0.3))
+    t = good.table.set_index("observable")
+    assert set(fl.index) <= set(t.index) and not good.missing
+    assert abs(t.loc["e_app", "z"]) < 2
+    assert t.loc["e_app", "one_realisation"] and not t.loc["v_mean_m_s", "one_realisation"]
+    assert t.loc["e_app", "sigma"] == pytest.approx(
+        math.sqrt(fl.loc["e_app", "sd"] ** 2 + 0.01 ** 2 + 0.01 ** 2 / 2))
+    assert not np.isfinite(t.loc["e_app", "rel_residual_pct"])
+    bad = compare(ds, pred(0.2))
+    tb = bad.table.set_index("observable")
+    assert tb.loc["e_app", "z"] < -5
+    assert "apparent restitution" in bad.summary() and "0.102 low" in bad.summary()
+    # without impact observables in the predictions the tracks are not read
+    plain = compare(ds, pred(0.3).iloc[:2])
+    assert list(plain.table["observable"]) == ["v_mean_m_s", "f_col_hz"]
+    assert compare(ds, pred(0.3), flights=False).missing == ()
