@@ -453,8 +453,9 @@ class _Problem:
 
 def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
     """Starting strengths for the fit of effect ``name``: the ``n_best`` points of lowest
-    profile chi2 on an even grid of ``n_scan`` strengths over its range, null excluded; local
-    minima only, and none within half a grid step of ``exclude``. The base parameters are
+    profile chi2 on an even grid of ``n_scan`` strengths over its range, null excluded, as
+    (strength, profile chi2) pairs; local minima only, none within half a grid step of
+    ``exclude``. The base parameters are
     profiled out linearly: the whitened residual at (``theta``, strength) with its component
     along ``J`` (the whitened Jacobian of the base parameters at ``theta``) removed, so a
     calibration that absorbed part of the effect does not hide a distant minimum."""
@@ -474,9 +475,9 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
         right = chi2[i + 1] if i + 1 < len(grid) else np.inf
         if chi2[i] > min(left, right):
             continue                                    # not a local minimum of the scan
-        if any(abs(grid[i] - x) < 0.5 * step for x in list(exclude) + out):
+        if any(abs(grid[i] - x) < 0.5 * step for x in list(exclude) + [o[0] for o in out]):
             continue
-        out.append(float(grid[i]))
+        out.append((float(grid[i]), float(chi2[i])))
         if len(out) == n_best:
             break
     return out
@@ -602,8 +603,13 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         fit = prob.fit(theta_c, effect=name, start_strength=start)
         # also start from null and from the best points of a scan over the strength's range
         # (a library-interpolated response can have several minima); keep the best optimum
-        others = [e.null + 0.1 * h] if start != e.null else []
-        for s0 in others + _scan_starts(prob, theta_c, name, J, exclude=(start,)):
+        if start != e.null:
+            f0 = prob.fit(theta_c, effect=name, start_strength=e.null + 0.1 * h)
+            if f0.chi2 < fit.chi2:
+                fit = f0
+        for s0, c0 in _scan_starts(prob, theta_c, name, J, exclude=(start,)):
+            if c0 >= fit.chi2:
+                continue                  # its (linear) profile is already worse: no fit
             f0 = prob.fit(theta_c, effect=name, start_strength=s0)
             if f0.chi2 < fit.chi2:
                 fit = f0
@@ -830,7 +836,8 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
     theta_c = {k: before.params[k] for k in theta0}
     starts = [0.5 * (e.null + e.far) if start_strength is None else start_strength,
               e.null + 0.05 * (e.far - e.null)]
-    starts += _scan_starts(prob, theta_c, name, before.jac.to_numpy(), exclude=starts)
+    starts += [s0 for s0, _ in _scan_starts(prob, theta_c, name, before.jac.to_numpy(),
+                                            exclude=starts)]
     after = min((prob.fit(theta_c, effect=name, start_strength=s) for s in starts),
                 key=lambda f: f.chi2)
     stages = [("baseline", baseline, 0), ("calibrated", before, len(prob.base)),

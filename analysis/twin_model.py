@@ -92,6 +92,8 @@ class Candidate:
     p0 : reference of the non-linear coordinates
     fixed : further parameters of the effect (defaults otherwise)
     levels : signature strengths as fractions of s_max (None: ``SIGNATURE_LEVELS``)
+    replicates : seeds per signature level and condition (None: the library's ``replicates``;
+        the larger of the two is used)
     """
 
     name: str
@@ -103,6 +105,7 @@ class Candidate:
     p0: float = 1.0
     fixed: tuple = ()
     levels: tuple | None = None
+    replicates: int | None = None
 
     @property
     def signature_levels(self):
@@ -144,10 +147,13 @@ class Candidate:
 CANDIDATES = (
     Candidate("viscoelastic_restitution", "dem", "k", 0.6, "-"),
     Candidate("arc_motion", "dem", "curvature_1_m", 15.0, "1/m"),
-    # the 20.6 mm ball's motion switches between (100 Hz / f_n)^2 = 0.75 and 1.05 (approach
-    # speed 4.0 -> 1.1 m/s at 30 Hz): denser levels there
+    # the 20.6 mm ball's flight is bistable under compliance: a start either locks into the
+    # 'normal' impacts or a 'late' pattern (approach 4.4 vs 1.3 m/s at 30 Hz, the same strength),
+    # from (100 Hz / f_n)^2 ~ 0.5 up, and the late pattern's impact observables change fast with
+    # the strength: levels every s_max / 8 from s_max / 4, 4 seeds each so that both patterns
+    # are sampled
     Candidate("jar_compliance", "dem", "f_n_hz", 1.5, "Hz", coord="inv_square", p0=100.0,
-              levels=(0.5, 0.625, 0.75, 0.875, 1.0)),
+              levels=(0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0), replicates=4),
     Candidate("powder_layer", "dem", "layer_thickness_m", 1.0, "m", coord="square",
               p0=5e-4),
     Candidate("rolling_resistance", "dem", "extra_rolling_friction", 2.0, "-"),
@@ -182,13 +188,14 @@ def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None,
     """(label, effect, strength, condition_id, config) rows of the signature library: the anchor
     (label 'none', ``anchor_replicates`` seeds, default ``replicates``) and every DEM candidate
     at each of its signature strengths (``levels`` x s_max; default each candidate's
-    ``signature_levels``) with the first ``replicates`` of the same seeds."""
+    ``signature_levels``) with the first ``replicates`` of the same seeds (more where the
+    candidate asks for more: ``Candidate.replicates``)."""
     rows = []
-    variants = [("none", None, 0.0, None)]
-    variants += [(c.name, c.name, fr * c.s_max, c.spec(fr * c.s_max)) for c in CANDIDATES
+    variants = [("none", None, 0.0, None, anchor_replicates or replicates)]
+    variants += [(c.name, c.name, fr * c.s_max, c.spec(fr * c.s_max),
+                  max(replicates, c.replicates or 0)) for c in CANDIDATES
                  if c.kind == "dem" for fr in (levels or c.signature_levels)]
-    for label, eff, s, spec in variants:
-        n_seeds = (anchor_replicates or replicates) if label == "none" else replicates
+    for label, eff, s, spec, n_seeds in variants:
         for cnd in conditions.itertuples():
             for k in range(n_seeds):
                 cfg = dict(base or {}, **theta_ref)
