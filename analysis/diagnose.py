@@ -171,6 +171,10 @@ class FitResult:
     residuals : Series, z = (model - measured) / sigma per key
     jac : DataFrame, shape (n, k), d(prediction / sigma) / d(param) at the solution
     at_bound : list of parameter names that ended on a bound
+    sigma : ndarray or None, the sigma per key the fit was scored with
+    penalty : float, sum log(sigma^2 / sigma_0^2) at the optimum when sigma depends on the
+        strength (``effect_se``), else 0; ``objective`` = chi2 + penalty (-2 log likelihood up
+        to a constant) is what fits are compared by
     """
 
     params: dict
@@ -182,6 +186,12 @@ class FitResult:
     residuals: pd.Series
     jac: pd.DataFrame
     at_bound: list
+    sigma: np.ndarray | None = None
+    penalty: float = 0.0
+
+    @property
+    def objective(self) -> float:
+        return self.chi2 + self.penalty
 
     @property
     def chi2_dof(self) -> float:
@@ -303,7 +313,7 @@ class _Problem:
     """Whitened least-squares problem around a black-box ``predict``."""
 
     def __init__(self, predict, observations, base_params, effects, model_se, fixed_effects,
-                 base_step_frac, conditions):
+                 base_step_frac, conditions, effect_se=None):
         if isinstance(observations, Dataset):
             conditions = observations.conditions if conditions is None else conditions
             observations = observations_from_dataset(observations)
@@ -347,6 +357,8 @@ class _Problem:
         self.model_se = se
         self.sd = sd
         self.sigma = np.sqrt(sd ** 2 + se ** 2)
+        self.effect_se = effect_se
+        self._esig = {}
         if np.any(self.sigma <= 0):
             raise ValueError("observations: zero uncertainty (sd and model_se both 0) at %r"
                              % (self.keys[int(np.argmin(self.sigma))],))
@@ -382,9 +394,38 @@ class _Problem:
             self._cache[key] = vals
         return self._cache[key]
 
+    def penalty(self, effects):
+        """sum log(sigma^2 / sigma_0^2) at these effect strengths (0 without ``effect_se``)."""
+        if self.effect_se is None:
+            return 0.0
+        return float(np.sum(2.0 * np.log(self.sigma_for(effects) / self.sigma_for({}))))
+
+    def sigma_for(self, effects):
+        """sigma with the model's extra uncertainty at these effect strengths (``effect_se``,
+        e.g. a library's interpolation between its signature levels) added in quadrature."""
+        eff = dict(self.fixed)
+        eff.update(effects or {})
+        on = {k: float(v) for k, v in eff.items()
+              if k not in self.effects or v != self.effects[k].null}
+        if self.effect_se is None or not on:
+            return self.sigma
+        key = tuple(sorted(on.items()))
+        if key not in self._esig:
+            ex = pd.Series(self.effect_se(on))
+            ex = ex.reindex(self.keys).fillna(0.0).to_numpy(float)
+            if not np.all(np.isfinite(ex)) or np.any(ex < 0):
+                raise ValueError("effect_se returned a negative or non-finite value")
+            self._esig[key] = np.sqrt(self.sigma ** 2 + ex ** 2)
+        return self._esig[key]
+
     # ---- fitting in normalised coordinates u in [0, 1]
     def fit(self, start_theta, effect=None, start_strength=None, max_nfev=200) -> FitResult:
-        """Fit the base parameters (and the strength of ``effect`` when given)."""
+        """Fit the base parameters (and the strength of ``effect`` when given).
+
+        With ``effect_se`` sigma depends on the strength, and the fit maximises the Gaussian
+        likelihood: besides the whitened residuals, the objective holds sum log(sigma^2 /
+        sigma_0^2) (as residual rows sqrt(log(...)) >= 0), so a strength is not preferred for
+        the uncertainty it adds. ``chi2`` is the residuals' part at the optimum."""
         names = [p.name for p in self.base]
         lo = np.array([p.lower for p in self.base], float)
         hi = np.array([p.upper for p in self.base], float)
@@ -397,6 +438,8 @@ class _Problem:
             x0 = np.append(x0, e.null if start_strength is None else start_strength)
         span = hi - lo
         nb = len(self.base)
+        varying = effect is not None and self.effect_se is not None
+        sigma_0 = self.sigma_for({})
 
         def unpack(u):
             x = lo + span * np.clip(u, 0.0, 1.0)
@@ -404,19 +447,29 @@ class _Problem:
             eff = {effect: x[nb]} if effect is not None else {}
             return theta, eff
 
-        def fun(u):
+        def whitened(u):
             theta, eff = unpack(u)
-            return (self.y - self.mu(theta, eff)) / self.sigma
+            return (self.y - self.mu(theta, eff)) / self.sigma_for(eff)
 
-        def jac(u):
-            f0 = fun(u)
-            J = np.empty((self.n, len(u)))
+        def fun(u):
+            r = whitened(u)
+            if not varying:
+                return r
+            pen = 2.0 * np.log(self.sigma_for(unpack(u)[1]) / sigma_0)
+            return np.concatenate([r, np.sqrt(np.maximum(pen, 0.0))])
+
+        def fd_jac(f, u):
+            f0 = f(u)
+            J = np.empty((len(f0), len(u)))
             for j in range(len(u)):
                 h = self.base_step_frac
                 uj = u.copy()
                 uj[j] = u[j] + h if u[j] + h <= 1.0 else u[j] - h
-                J[:, j] = (fun(uj) - f0) / (uj[j] - u[j])
+                J[:, j] = (f(uj) - f0) / (uj[j] - u[j])
             return J
+
+        def jac(u):
+            return fd_jac(fun, u)
 
         u0 = np.clip((x0 - lo) / span, 0.0, 1.0)
         sol = optimize.least_squares(fun, u0, jac=jac, bounds=(0.0, 1.0), method="trf",
@@ -425,30 +478,34 @@ class _Problem:
         u = np.clip(sol.x, 0.0, 1.0)
         theta, eff = unpack(u)
         mu = self.mu(theta, eff)
-        Ju = -jac(u)                       # d(mu / sigma) / du
+        sigma = self.sigma_for(eff)
+        penalty = self.penalty(eff) if varying else 0.0
+        Ju = -fd_jac(whitened, u)          # d(mu / sigma) / du
         Jx = Ju / span                     # per physical unit
         cov = np.linalg.pinv(Jx.T @ Jx)
         x = lo + span * u
         params = dict(zip(names, x))
         stderr = dict(zip(names, np.sqrt(np.maximum(np.diag(cov), 0.0))))
-        z = (mu - self.y) / self.sigma
+        z = (mu - self.y) / sigma
         at_bound = [nm for nm, ui in zip(names, u) if ui <= 1e-9 or ui >= 1 - 1e-9]
         return FitResult(params=params, stderr=stderr,
                          cov=pd.DataFrame(cov, index=names, columns=names),
                          chi2=float(np.sum(z ** 2)), dof=self.n - len(names),
                          prediction=pd.Series(mu, index=self.keys),
                          residuals=pd.Series(z, index=self.keys),
-                         jac=pd.DataFrame(Jx, index=self.keys, columns=names), at_bound=at_bound)
+                         jac=pd.DataFrame(Jx, index=self.keys, columns=names), at_bound=at_bound,
+                         sigma=sigma, penalty=penalty)
 
     def stage(self, theta, eff=None) -> FitResult:
         """Model at fixed parameters (no fit): a FitResult with dof = n."""
         mu = self.mu(theta, eff or {})
-        z = (mu - self.y) / self.sigma
+        sig = self.sigma_for(eff or {})
+        z = (mu - self.y) / sig
         return FitResult(params=dict(theta), stderr={}, cov=pd.DataFrame(),
                          chi2=float(np.sum(z ** 2)), dof=self.n,
                          prediction=pd.Series(mu, index=self.keys),
                          residuals=pd.Series(z, index=self.keys), jac=pd.DataFrame(),
-                         at_bound=[])
+                         at_bound=[], sigma=sig)
 
 
 def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
@@ -467,7 +524,8 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
         return []
     J = np.zeros((prob.n, 0)) if J is None else np.asarray(J, float)
     chi2 = np.array([float(np.sum(_project_out(J, (prob.mu(theta, {name: g}) - prob.y)
-                                                / prob.sigma) ** 2)) for g in grid])
+                                                / prob.sigma_for({name: g})) ** 2))
+                     + prob.penalty({name: g}) for g in grid])
     step = (e.upper - e.lower) / max(n_scan - 1, 1)
     out = []
     for i in np.argsort(chi2):
@@ -498,7 +556,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
              conditions: pd.DataFrame | None = None, alpha: float = 0.01,
              min_footprint: float = 2.0, min_snr: float = 3.0,
              effect_step_frac: float = 0.25, base_step_frac: float = 1e-3,
-             structure: bool = True, noise_observables=None) -> Diagnosis:
+             structure: bool = True, noise_observables=None, effect_se=None) -> Diagnosis:
     """Rank candidate effects by how well each explains the residual after calibration.
 
     Parameters
@@ -540,13 +598,18 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         computed from the same draws, would count the same noise several times). None: all.
         A 'kinetics' effect acts after the twin, on the same draws: its signature carries no
         twin noise.
+    effect_se : callable or None
+        effects {name: strength} -> Series (condition_id, observable) of the model's extra
+        standard error with those effects on (e.g. a signature library's interpolation error
+        between its levels), added in quadrature to sigma in every fit with an effect; such a
+        fit maximises the Gaussian likelihood (see ``_Problem.fit``). None: none.
 
     Returns
     -------
     Diagnosis
     """
     prob = _Problem(predict, observations, base_params, effects, model_se, fixed_effects,
-                    base_step_frac, conditions)
+                    base_step_frac, conditions, effect_se)
     theta0 = {p.name: p.value for p in prob.base}
     baseline = prob.stage(theta0)
     cal = prob.fit(theta0)
@@ -605,16 +668,16 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         # (a library-interpolated response can have several minima); keep the best optimum
         if start != e.null:
             f0 = prob.fit(theta_c, effect=name, start_strength=e.null + 0.1 * h)
-            if f0.chi2 < fit.chi2:
+            if f0.objective < fit.objective:
                 fit = f0
         for s0, c0 in _scan_starts(prob, theta_c, name, J, exclude=(start,)):
-            if c0 >= fit.chi2:
+            if c0 >= fit.objective:
                 continue                  # its (linear) profile is already worse: no fit
             f0 = prob.fit(theta_c, effect=name, start_strength=s0)
-            if f0.chi2 < fit.chi2:
+            if f0.objective < fit.objective:
                 fit = f0
         fits[name] = fit
-        d = max(cal.chi2 - fit.chi2, 0.0)
+        d = max(cal.chi2 - fit.objective, 0.0)   # 2 x the log-likelihood gain
         dof_after = max(fit.dof, 1)
         p_lr = float(stats.chi2.sf(d, 1)) if d > 0 else 1.0
         if e.null_on_bound:
@@ -815,10 +878,11 @@ def _structure_words(kind, o, cid, s):
 
 def add_effect(predict, observations, base_params, effects, name: str, *, model_se=None,
                fixed_effects: dict | None = None, start_strength: float | None = None,
-               base_step_frac: float = 1e-3) -> AddEffectResult:
+               base_step_frac: float = 1e-3, effect_se=None) -> AddEffectResult:
     """Switch effect ``name`` on: refit base parameters and its strength jointly.
 
-    Parameters are those of :func:`diagnose`; ``start_strength`` defaults to the midpoint
+    Parameters are those of :func:`diagnose` (``effect_se`` too); ``start_strength`` defaults
+    to the midpoint
     between null and the far bound (also tried: the null side, the better optimum is kept).
 
     Returns
@@ -826,7 +890,7 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
     AddEffectResult : staircase of chi2/dof (baseline, calibrated, with <name>), before/after fits
     """
     prob = _Problem(predict, observations, base_params, effects, model_se, fixed_effects,
-                    base_step_frac, None)
+                    base_step_frac, None, effect_se)
     if name not in prob.effects:
         raise ValueError("unknown effect %r (candidates: %s)" % (name, ", ".join(prob.effects)))
     e = prob.effects[name]
@@ -839,7 +903,7 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
     starts += [s0 for s0, _ in _scan_starts(prob, theta_c, name, before.jac.to_numpy(),
                                             exclude=starts)]
     after = min((prob.fit(theta_c, effect=name, start_strength=s) for s in starts),
-                key=lambda f: f.chi2)
+                key=lambda f: f.objective)
     stages = [("baseline", baseline, 0), ("calibrated", before, len(prob.base)),
               ("with %s" % name, after, len(prob.base) + 1)]
     stair = pd.DataFrame([{"stage": s, "chi2": f.chi2, "dof": f.dof, "chi2_dof": f.chi2_dof,
@@ -934,7 +998,7 @@ def main(argv=None):
         ds = load_dataset(args.dataset)
         problem = _load_model_factory(args.model)(ds)
         kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects",
-                                      "noise_observables") if k in problem}
+                                      "noise_observables", "effect_se") if k in problem}
         obs = problem.get("observations", ds)
         diag = diagnose(problem["predict"], obs, problem["base_params"], problem["effects"],
                         alpha=args.alpha, conditions=ds.conditions, **kw)

@@ -359,3 +359,37 @@ def test_a_distant_minimum_of_the_strength_is_found():
     finally:
         dg.SCAN_POINTS = old
     assert a0.after.chi2 > a.after.chi2 + 25
+
+
+def test_effect_se_enters_sigma_and_the_likelihood_does_not_chase_it():
+    """A model uncertainty that depends on the strength (effect_se, e.g. a library's
+    interpolation error) widens sigma in the fits with the effect; the fit maximises the
+    likelihood, so a strength range where the model claims to know nothing (10 x sigma) is
+    not chosen for it (a chi2-only fit would prefer it: its speeds weigh 100 x less there)."""
+    obs, predict, se = make({"ball_spin": 0.5}, seed=21)
+    sig0 = np.hypot(obs["sd"].to_numpy(), se.to_numpy())
+
+    def vague(eff):
+        s = eff.get("ball_spin", 0.0)
+        return pd.Series(np.where(IS_V, 10.0 * sig0, 0.0) if s > 0.85 else 0.0 * sig0,
+                         index=IDX)
+
+    a = add_effect(predict, obs, BASE, EFFECTS, "ball_spin", model_se=se, effect_se=vague)
+    assert abs(a.strength - 0.5) < 4 * a.strength_se
+    assert a.after.penalty == 0.0
+    d = diagnose(predict, obs, BASE, EFFECTS, model_se=se, conditions=CONDS, effect_se=vague)
+    assert d.best == "ball_spin"
+    assert abs(d.table.set_index("effect").loc["ball_spin", "strength"] - 0.5) < 0.1
+
+    def wide(eff):                       # twice sigma on every speed wherever the effect is on
+        on = eff.get("ball_spin", 0.0) > 0
+        return pd.Series(np.where(IS_V & on, 2.0 * sig0, 0.0), index=IDX)
+
+    b = add_effect(predict, obs, BASE, EFFECTS, "ball_spin", model_se=se, effect_se=wide)
+    plain = add_effect(predict, obs, BASE, EFFECTS, "ball_spin", model_se=se)
+    n_v = int(IS_V.sum())
+    assert b.after.penalty == pytest.approx(n_v * np.log(5.0), rel=1e-6)
+    assert b.after.sigma[IS_V] == pytest.approx(np.sqrt(5.0) * sig0[IS_V])
+    assert b.after.chi2 < plain.after.chi2
+    # the stages without the effect keep the plain sigma
+    assert b.before.chi2 == pytest.approx(plain.before.chi2)
