@@ -200,14 +200,15 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
     say("3/5 diagnose: which catalog effect explains the misfit?")
     obs = prob.get("observations", ds)
     diag = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
-                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    model_se=prob["model_se"], effect_se=prob.get("effect_se"),
+                    crn_correlation=prob["crn_correlation"],
                     noise_observables=prob["noise_observables"], conditions=ds.conditions)
     say("   " + diag.verdict)
     added = None
     if diag.best:
         say("4/5 add %s: refit the base parameters and its strength" % diag.best)
         added = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], diag.best,
-                           model_se=prob["model_se"])
+                           model_se=prob["model_se"], effect_se=prob.get("effect_se"))
         say("   " + added.summary())
     else:
         say("4/5 nothing to add")

@@ -65,7 +65,8 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
     t0 = time.perf_counter()
     obs = prob.get("observations", ds)
     diag = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
-                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    model_se=prob["model_se"], effect_se=prob.get("effect_se"),
+                    crn_correlation=prob["crn_correlation"],
                     noise_observables=prob["noise_observables"], conditions=ds.conditions,
                     alpha=alpha)
     true = [k for k in truth["effects"]]
@@ -91,7 +92,7 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
     row["n_observables"] = int(len(obs)) if isinstance(obs, pd.DataFrame) else np.nan
     if diag.best:
         add = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], diag.best,
-                         model_se=prob["model_se"])
+                         model_se=prob["model_se"], effect_se=prob.get("effect_se"))
         row["chi2_dof_after_add"] = float(add.staircase["chi2_dof"].iloc[-1])
     row["seconds"] = time.perf_counter() - t0
     return row

@@ -556,6 +556,43 @@ def _interp_levels(sig, s):
     return np.array(rows)
 
 
+def _curvatures(xs, ds):
+    """(k - 1, n_cols) curvature scale of each segment of one condition's signature: at every
+    interior level the deviation from the line through its neighbours over the product of its
+    two spacings (|f''| / 2 for a quadratic), a segment taking the larger of its two ends; zero
+    with fewer than three points."""
+    k = len(xs)
+    c = np.zeros((k, ds.shape[1]))
+    for j in range(1, k - 1):
+        a, b = xs[j] - xs[j - 1], xs[j + 1] - xs[j]
+        line = ds[j - 1] + (ds[j + 1] - ds[j - 1]) * a / (a + b)
+        c[j] = np.abs(ds[j] - line) / (a * b)
+    if k < 2:
+        return np.zeros((0, ds.shape[1]))
+    return np.maximum(c[:-1], c[1:])
+
+
+def _interp_sd(sig, curv, s):
+    """(n_cond, n_cols) standard error of :func:`_interp_levels` at strength ``s``: zero at a
+    level, C (s - x_k) (x_k+1 - s) inside a segment (exact for a quadratic response, a scale
+    for a rougher one), C (s - x_k-1)(s - x_k) beyond the top; below a late branch's first level
+    (held flat) the first segment's slope times the distance is added."""
+    rows = []
+    for (xs, ds), C in zip(sig, curv):
+        z = np.zeros(ds.shape[1])
+        if len(xs) < 2 or (s <= xs[0] and xs[0] <= 0):
+            rows.append(z)
+        elif s <= xs[0]:
+            slope = np.abs(ds[1] - ds[0]) / (xs[1] - xs[0])
+            rows.append(slope * (xs[0] - s) + C[0] * (xs[0] - s) * (xs[1] - s))
+        elif s >= xs[-1]:
+            rows.append(C[-1] * (s - xs[-1]) * (s - xs[-2]))
+        else:
+            k = int(np.clip(np.searchsorted(xs, s) - 1, 0, len(xs) - 2))
+            rows.append(C[k] * (s - xs[k]) * (xs[k + 1] - s))
+    return np.array(rows)
+
+
 class TwinModel:
     """predict(theta, effects) for diagnose, from the anchor, the GP difference and the signature
     library (see the module docstring).
@@ -629,6 +666,7 @@ class TwinModel:
                 raise ValueError("the signature library has no runs of %s" % c.name)
             self.sig[c.name] = _levels(d, cids, ["v_mean_m_s", "f_col_hz"], self.anchor,
                                        self.patterns)
+        self.sig_curv = {k: [_curvatures(xs, ds) for xs, ds in v] for k, v in self.sig.items()}
         self.em = emulator if emulator is not None else base_emulator()
         X = self._em_inputs(self.theta_ref)
         self.em_ref = self.em.predict(X)
@@ -673,6 +711,8 @@ class TwinModel:
                 continue
             self.fl_sig[c.name] = _levels(summ[summ["label"] == c.name], cids, fo,
                                           self.fl_anchor, self.patterns)
+        self.fl_curv = {k: [_curvatures(xs, ds) for xs, ds in v]
+                        for k, v in self.fl_sig.items()}
         self.fl_em = emulator if emulator is not None else flight_emulator()
         self.fl_em_ref = self.fl_em.predict(self._em_inputs(self.theta_ref))
 
@@ -794,6 +834,35 @@ class TwinModel:
                 out += list(self.fl_sd_cond[i] / math.sqrt(self.n_rep))
         return pd.Series(out, index=self.keys)
 
+    def resolution_se(self, effects):
+        """The library's interpolation error per key with DEM ``effects`` {name: strength} on
+        (:func:`_interp_sd` of each signature, summed in quadrature over the effects and
+        propagated to the yields like :meth:`model_se`): zero at the library's levels, largest
+        between levels whose response bends - e.g. jar compliance's late impact pattern, whose
+        impact observables change fast with the strength. diagnose's ``effect_se``."""
+        n = len(self.conditions)
+        dem = [(k, float(v)) for k, v in (effects or {}).items() if k in self.sig and v]
+        var = np.zeros((n, 2))
+        fvar = np.zeros((n, len(self.flight_obs))) if self.flight_conditions else None
+        for name, st in dem:
+            var += _interp_sd(self.sig[name], self.sig_curv[name], st) ** 2
+            if fvar is not None:
+                fvar += _interp_sd(self.fl_sig[name], self.fl_curv[name], st) ** 2
+        sd = np.sqrt(var)
+        y = self.anchor                 # v, f_col at which the yields' se is propagated
+        from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ as slope
+        out = []
+        for i, cid in enumerate(self.conditions["condition_id"]):
+            v, f = y[i]
+            out += [sd[i, 0], sd[i, 1]]
+            m = self.mass_kg[i]
+            for t in self.yield_times_min.get(cid, []):
+                out.append(abs(slope) * t * 60.0 / 1000.0
+                           * math.hypot(m * v * f * sd[i, 0], 0.5 * m * v * v * sd[i, 1]))
+            if cid in self.flight_conditions:
+                out += list(np.sqrt(fvar[i]))
+        return pd.Series(out, index=self.keys)
+
     def flight_run_sd(self):
         """One twin run's scatter of the impact observables per (condition, observable): the
         part of a measured track's deviation that its within-record se does not see (a track is
@@ -853,7 +922,8 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
         obs["sd"] = np.hypot(obs["sd"].to_numpy(float), add)
     noise = {"v_mean_m_s", "f_col_hz"} | (set(FLIGHT_OBSERVABLES) if fl_ids else set())
     return {"predict": m.predict, "base_params": m.base_params(), "effects": m.effects(),
-            "model_se": m.model_se(), "crn_correlation": 0.0, "observations": obs,
+            "model_se": m.model_se(), "effect_se": m.resolution_se,
+            "crn_correlation": 0.0, "observations": obs,
             "noise_observables": noise, "model": m, "patterns": patterns}
 
 

@@ -395,3 +395,52 @@ def test_signatures_follow_the_measured_impact_pattern():
                                ["a", "b"], ["v_mean_m_s"], anchor, {"b": "late"})
     assert list(plain[1][0]) == [0.0, 0.5, 1.0]
     assert twin_model._interp_levels(plain, 0.75)[1, 0] == pytest.approx(0.3)
+
+
+def test_interpolation_error_is_exact_for_a_quadratic_response():
+    """The library's resolution se (_curvatures, _interp_sd) is zero at the levels, equals the
+    true error of linear interpolation for a quadratic response (levels 0, 0.5, 1, 1.5 of
+    a s^2), grows beyond the top like linear extrapolation's error, and below a late branch's
+    first level (held flat) holds the branch's slope times the distance."""
+    xs = np.array([0.0, 0.5, 1.0, 1.5])
+    a = np.array([0.3, -2.0])
+    ds = np.outer(xs ** 2, a)
+    sig = [(xs, ds)]
+    curv = [twin_model._curvatures(xs, ds)]
+    for s in (0.1, 0.25, 0.7, 1.2, 1.45):
+        err = np.abs(twin_model._interp_levels(sig, s)[0] - s * s * a)
+        assert twin_model._interp_sd(sig, curv, s)[0] == pytest.approx(err, rel=1e-9)
+    for s in xs[1:]:
+        assert twin_model._interp_sd(sig, curv, s)[0] == pytest.approx([0.0, 0.0], abs=1e-12)
+    err = np.abs(twin_model._interp_levels(sig, 1.8)[0] - 1.8 ** 2 * a)
+    assert twin_model._interp_sd(sig, curv, 1.8)[0] == pytest.approx(err, rel=1e-9)
+    # a late branch (levels 1, 1.5 only, flat below 1): two points, no curvature
+    late = [(xs[2:], ds[2:])]
+    lc = [twin_model._curvatures(xs[2:], ds[2:])]
+    slope = np.abs(ds[3] - ds[2]) / 0.5
+    assert twin_model._interp_sd(late, lc, 0.6)[0] == pytest.approx(slope * 0.4)
+    assert twin_model._interp_sd(late, lc, 1.2)[0] == pytest.approx([0.0, 0.0])
+    # a rough response (a late branch's e_app: 0.25, -0.06, 0.155) gets a wide band between
+    x3 = np.array([0.9375, 1.125, 1.3125])
+    d3 = np.array([[0.25], [-0.06], [0.155]])
+    sd = twin_model._interp_sd([(x3, d3)], [twin_model._curvatures(x3, d3)], 1.05)[0, 0]
+    assert sd == pytest.approx(0.2625 / 0.1875 ** 2 * (1.05 - 0.9375) * (1.125 - 1.05))
+
+
+def test_resolution_se_of_the_twin_model(fake):
+    """TwinModel.resolution_se: zero with no effect and at a library level, positive between
+    levels where the response bends, per key of predict."""
+    lib = fake["library"]
+    conds = pd.DataFrame(lib[1]["conditions"])
+    m = twin_model.TwinModel(conds, {c: [5.0] for c in conds["condition_id"]}, library=lib,
+                             emulator=fake["emulator"])
+    zero = m.resolution_se({})
+    assert list(zero.index) == list(m.predict(m.theta_ref, {}).index)
+    assert (zero == 0).all()
+    c = twin_model.candidates()["jar_compliance"]
+    lv = c.signature_levels[1] * c.s_max
+    assert m.resolution_se({"jar_compliance": lv}).abs().max() < 1e-12
+    mid = 0.5 * (c.signature_levels[1] + c.signature_levels[2]) * c.s_max
+    r = m.resolution_se({"jar_compliance": mid})
+    assert (r >= 0).all() and r.max() > 0
+    assert m.resolution_se({"jar_compliance": mid, "air_drag": 0.0}).equals(r)

@@ -38,14 +38,15 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
     model = prob["model"]
     obs = prob.get("observations", ds)
     diag = diagnose(prob["predict"], obs, prob["base_params"], prob["effects"],
-                    model_se=prob["model_se"], crn_correlation=prob["crn_correlation"],
+                    model_se=prob["model_se"], effect_se=prob.get("effect_se"),
+                    crn_correlation=prob["crn_correlation"],
                     noise_observables=prob["noise_observables"], conditions=ds.conditions)
     say(diag.verdict)
     name = add or diag.best
     added = None
     if name:
         added = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], name,
-                           model_se=prob["model_se"])
+                           model_se=prob["model_se"], effect_se=prob.get("effect_se"))
         say(added.summary())
     tmp = out_dir.with_name("." + out_dir.name + ".tmp")
     if tmp.exists():
