@@ -61,6 +61,8 @@ from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
 SIGNATURE_DIR = RESULTS_DIR / "signatures"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"
 OUTPUTS = ("v_mean_m_s", "f_col_hz")
+#: the base parameters the emulators take (with frequency and ball diameter)
+EM_PARAMS = ("restitution", "static_friction", "rolling_friction", "amplitude_m")
 STEEL_DENSITY_KG_M3 = 7800.0  # analysis.kinetics.STEEL_DENSITY_KG_M3 (checked in the tests)
 V_REL_SD_FLOOR = 0.0025       # smallest replicate sd of one run's v_mean (relative)
 F_COL_SD_FLOOR_HZ = 1.0       # smallest replicate sd of one run's f_col [1/s]
@@ -723,17 +725,27 @@ class TwinModel:
 
     def _assemble(self, anchor, em, em_ref, sigs, theta, effects):
         """anchor + GP(theta) - GP(theta_ref) + the interpolated signatures of the effects."""
-        y = anchor + (em.predict(self._em_inputs(theta)) - em_ref)
+        y = anchor + (self._gp(em, theta) - em_ref)
         for name, s in (effects or {}).items():
             if name in sigs and s:
                 y = y + _interp_levels(sigs[name], float(s))
         return y
 
+    def _gp(self, em, theta):
+        """em's prediction at ``theta``, cached (a strength scan or a finite difference in a
+        strength calls predict many times at the same base parameters)."""
+        cache = self.__dict__.setdefault("_gp_cache", {})
+        key = (id(em), tuple(float(theta.get(k, self.theta_ref[k])) for k in EM_PARAMS))
+        if key not in cache:
+            if len(cache) > 512:
+                cache.clear()
+            cache[key] = em.predict(self._em_inputs(theta))
+        return cache[key]
+
     def _em_inputs(self, theta):
         c = self.conditions
         X = pd.DataFrame({k: np.full(len(c), float(theta.get(k, self.theta_ref[k])))
-                          for k in ("restitution", "static_friction", "rolling_friction",
-                                    "amplitude_m")})
+                          for k in EM_PARAMS})
         X["frequency_hz"] = c["frequency_hz"].to_numpy(float)
         X["ball_diameter_m"] = c["ball_diameter_mm"].to_numpy(float) * 1e-3
         return X
