@@ -523,9 +523,14 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
     if not len(grid):
         return []
     J = np.zeros((prob.n, 0)) if J is None else np.asarray(J, float)
-    chi2 = np.array([float(np.sum(_project_out(J, (prob.mu(theta, {name: g}) - prob.y)
-                                                / prob.sigma_for({name: g})) ** 2))
-                     + prob.penalty({name: g}) for g in grid])
+    s0 = prob.sigma_for({})
+    chi2 = []
+    for g in grid:
+        sg = prob.sigma_for({name: g})        # J was whitened by s0: rescale its rows
+        r = (prob.mu(theta, {name: g}) - prob.y) / sg
+        chi2.append(float(np.sum(_project_out(J * (s0 / sg)[:, None], r) ** 2))
+                    + prob.penalty({name: g}))
+    chi2 = np.array(chi2)
     step = (e.upper - e.lower) / max(n_scan - 1, 1)
     out = []
     for i in np.argsort(chi2):

@@ -574,13 +574,16 @@ def _curvatures(xs, ds):
     return np.maximum(c[:-1], c[1:])
 
 
-def _interp_sd(sig, curv, s):
+def _interp_sd(sig, curv, s, rough=None):
     """(n_cond, n_cols) standard error of :func:`_interp_levels` at strength ``s``: zero at a
     level, C (s - x_k) (x_k+1 - s) inside a segment (exact for a quadratic response, a scale
     for a rougher one), C (s - x_k-1)(s - x_k) beyond the top; below a late branch's first level
-    (held flat) the first segment's slope times the distance is added."""
+    (held flat) the first segment's slope times the distance is added. Where ``rough[i]`` (a
+    late impact pattern, whose flight passes through changes of motion between levels) a
+    segment may hold a step anywhere: at least |d_k+1 - d_k| sqrt(w (1 - w)), the rms error of
+    linear interpolation across a step at a uniformly unknown place."""
     rows = []
-    for (xs, ds), C in zip(sig, curv):
+    for i, ((xs, ds), C) in enumerate(zip(sig, curv)):
         z = np.zeros(ds.shape[1])
         if len(xs) < 2 or (s <= xs[0] and xs[0] <= 0):
             rows.append(z)
@@ -591,7 +594,11 @@ def _interp_sd(sig, curv, s):
             rows.append(C[-1] * (s - xs[-1]) * (s - xs[-2]))
         else:
             k = int(np.clip(np.searchsorted(xs, s) - 1, 0, len(xs) - 2))
-            rows.append(C[k] * (s - xs[k]) * (xs[k + 1] - s))
+            sd = C[k] * (s - xs[k]) * (xs[k + 1] - s)
+            if rough is not None and rough[i]:
+                w = (s - xs[k]) / (xs[k + 1] - xs[k])
+                sd = np.maximum(sd, np.abs(ds[k + 1] - ds[k]) * math.sqrt(w * (1.0 - w)))
+            rows.append(sd)
     return np.array(rows)
 
 
@@ -850,16 +857,18 @@ class TwinModel:
         """The library's interpolation error per key with DEM ``effects`` {name: strength} on
         (:func:`_interp_sd` of each signature, summed in quadrature over the effects and
         propagated to the yields like :meth:`model_se`): zero at the library's levels, largest
-        between levels whose response bends - e.g. jar compliance's late impact pattern, whose
-        impact observables change fast with the strength. diagnose's ``effect_se``."""
+        between levels whose response bends; in a condition measured in the late impact pattern
+        (jar compliance's second flight, whose impact observables jump between the library's
+        levels) at least the rms error across a step. diagnose's ``effect_se``."""
         n = len(self.conditions)
         dem = [(k, float(v)) for k, v in (effects or {}).items() if k in self.sig and v]
         var = np.zeros((n, 2))
         fvar = np.zeros((n, len(self.flight_obs))) if self.flight_conditions else None
+        rough = [self.patterns.get(c) == "late" for c in self.conditions["condition_id"]]
         for name, st in dem:
-            var += _interp_sd(self.sig[name], self.sig_curv[name], st) ** 2
+            var += _interp_sd(self.sig[name], self.sig_curv[name], st, rough) ** 2
             if fvar is not None:
-                fvar += _interp_sd(self.fl_sig[name], self.fl_curv[name], st) ** 2
+                fvar += _interp_sd(self.fl_sig[name], self.fl_curv[name], st, rough) ** 2
         sd = np.sqrt(var)
         y = self.anchor                 # v, f_col at which the yields' se is propagated
         from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ as slope
