@@ -444,3 +444,21 @@ def test_resolution_se_of_the_twin_model(fake):
     r = m.resolution_se({"jar_compliance": mid})
     assert (r >= 0).all() and r.max() > 0
     assert m.resolution_se({"jar_compliance": mid, "air_drag": 0.0}).equals(r)
+
+
+def test_a_late_branch_allows_a_step_between_levels():
+    """In a condition measured in the late impact pattern a segment's error is at least the rms
+    error of linear interpolation across a step at an unknown place, |d_k+1 - d_k| sqrt(w(1-w));
+    a straight (normal) branch keeps zero."""
+    xs = np.array([0.0, 0.5, 1.0])
+    ds = np.array([[0.0], [0.1], [0.2]])            # straight: no curvature
+    curv = [twin_model._curvatures(xs, ds)] * 2
+    sig = [(xs, ds)] * 2
+    sd = twin_model._interp_sd(sig, curv, 0.6, rough=[False, True])
+    assert sd[0, 0] == pytest.approx(0.0, abs=1e-12)
+    assert sd[1, 0] == pytest.approx(0.1 * np.sqrt(0.2 * 0.8))
+    # Monte Carlo: a step from 0.1 to 0.2 at a uniform place in (0.5, 1); linear error rms
+    rng = np.random.default_rng(0)
+    loc = rng.uniform(0.5, 1.0, 200000)
+    true = np.where(0.6 >= loc, 0.2, 0.1)
+    assert np.sqrt(np.mean((true - 0.12) ** 2)) == pytest.approx(sd[1, 0], rel=0.01)
