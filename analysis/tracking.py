@@ -32,6 +32,12 @@ the first frames of the ball's diameter in pixels, measured on the top and botto
 (motion blur along the jar axis stretches the left/right rims, not the top/bottom).
 
 Output y_m points up (image rows run down): y_m = (height - 1 - y_px) * m_per_px.
+
+The jar (``--jar``, :func:`track_jar`): in a band of rows just inside the jar's bottom wall
+(found as the darker of the frame's two darkest rows, or given) the mean grey profile shows the
+two end walls as dark dips; each is followed by its darkness-weighted centroid (sub-pixel: 0.02
+px rms on the synthetic films), the jar's x is their mean, written as ``jar_x_m`` (zero-mean),
+which :mod:`analysis.flights` needs for the impact observables.
 """
 from __future__ import annotations
 
@@ -860,13 +866,27 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
 
 
 def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None = None,
-                m_per_px: float | None = None, settings: TrackerSettings | None = None
-                ) -> TrackResult:
+                m_per_px: float | None = None, settings: TrackerSettings | None = None,
+                jar: bool = False, jar_band_rows=None) -> TrackResult:
     """Track the ball in a video file. ``fps`` defaults to a ``<stem>.json`` sidecar's (or a
     ``video.json`` beside the video, as in a measurement dataset), then to the container's
     (OpenCV), and must be > 0. Scale as in :func:`track_frames`; the sidecar's m_per_px /
     ball_diameter_m are used when both arguments are None; its ball_diameter_px sets the
-    expected size."""
+    expected size. With ``jar`` (a lab-frame video) the jar is followed too (:func:`track_jar`,
+    band ``jar_band_rows`` or found): column ``jar_x_m``, which :mod:`analysis.flights` needs
+    for the impact observables; ``params['jar']`` holds its band and walls."""
+    res = _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings)
+    if jar:
+        x, info = track_jar_video(path, res.m_per_px, band=jar_band_rows)
+        if len(x) != len(res.track):
+            raise TrackingError("%s: the jar pass read %d frames, the ball pass %d"
+                                % (path, len(x), len(res.track)))
+        res.track["jar_x_m"] = x
+        res.params["jar"] = info
+    return res
+
+
+def _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings) -> TrackResult:
     import json
     path = Path(path)
     side = path.with_name(path.stem + ".json")
@@ -982,6 +1002,112 @@ def decode_ahead(cap, batch: int = 32, depth: int = 3):
         th.join(timeout=5)
 
 
+# --------------------------------------------------------------------------------------------
+# the jar: its end walls in a band of rows -> jar_x_m
+# --------------------------------------------------------------------------------------------
+class JarNotFoundError(TrackingError):
+    """The jar's end walls cannot be found in the video."""
+
+
+def jar_band(gray: np.ndarray, inset_frac: float = 0.12):
+    """(row0, row1) of a band just inside the jar's bottom wall, where its two end walls cross
+    and the ball, flying near the jar's axis, seldom comes: the jar's top and bottom walls are
+    the two darkest rows of the frame (their lines span the whole jar; an occluder or the ball
+    darkens only part of a row)."""
+    g = np.asarray(gray, float)
+    dark = np.median(g) - g.mean(axis=1)
+    rows = np.argsort(dark)[::-1]
+    top = int(rows[0])
+    far = [r for r in rows[1:] if abs(int(r) - top) > 0.1 * g.shape[0]]
+    if not far:
+        raise JarNotFoundError("no two dark horizontal jar walls in the first frame")
+    a, b = sorted((top, int(far[0])))
+    h = b - a
+    r1 = b - 3
+    r0 = max(a + 1, int(round(b - inset_frac * h)))
+    if r1 - r0 < 2:
+        raise JarNotFoundError("the jar is too small in the frame (%d px between its walls)" % h)
+    return r0, r1
+
+
+def _dip_centroid(p: np.ndarray, c: float, half: int, level: float, width: int = 4):
+    """Sub-pixel centre of a dark dip of profile ``p`` near column ``c``: its darkest column
+    within ``half`` px of ``c``, then the darkness-weighted (level - p, >= 0) centroid of the
+    columns within ``width`` px of that (the whole dip with its anti-aliased edges)."""
+    i0, i1 = max(0, int(round(c)) - half), min(len(p), int(round(c)) + half + 1)
+    if i1 <= i0:
+        return np.nan
+    m = i0 + int(np.argmin(p[i0:i1]))
+    j0, j1 = max(0, m - width), min(len(p), m + width + 1)
+    d = np.maximum(level - p[j0:j1], 0.0)
+    if d.sum() <= 0:
+        return np.nan
+    return float(j0 + np.sum(d * np.arange(len(d))) / np.sum(d))
+
+
+def track_jar(frames, m_per_px: float, band=None, max_step_px: float = 12.0):
+    """Jar displacement along x per frame [m], from its two end walls.
+
+    In a band of rows (default :func:`jar_band` of the first frame) each frame's mean grey over
+    the band is a profile with two dark dips, the end walls; each is followed by its
+    darkness-weighted centroid (sub-pixel), the jar's position is their mean. Returns
+    (jar_x_m, info): displacement relative to the record's mean (the twin's jar_x_m is zero-mean
+    too), NaN where a wall was lost; info holds the band, the walls' first columns and the
+    length between them [px]."""
+    it = iter(frames)
+    try:
+        first = np.asarray(next(it), float)
+    except StopIteration:
+        raise JarNotFoundError("no frame") from None
+    if first.ndim == 3:
+        first = first.mean(axis=2)
+    r0, r1 = band if band is not None else jar_band(first)
+    if not (0 <= r0 < r1 <= first.shape[0]):
+        raise JarNotFoundError("jar band rows %s outside the frame (height %d)"
+                               % ((r0, r1), first.shape[0]))
+    p = first[r0:r1].mean(axis=0)
+    level = float(np.median(p))
+    dark = level - p
+    order = np.argsort(dark)[::-1]
+    c1 = int(order[0])
+    rest = [int(i) for i in order[1:] if abs(int(i) - c1) > 0.1 * len(p)]
+    if not rest or dark[rest[0]] < 0.3 * dark[c1]:
+        raise JarNotFoundError("rows %d-%d: not two dark jar end walls" % (r0, r1))
+    caps = sorted((c1, rest[0]))
+    half = int(max(4, max_step_px))
+    pos = [[_dip_centroid(p, c, half, level) for c in caps]]
+    for g in it:
+        g = np.asarray(g, float)
+        if g.ndim == 3:
+            g = g.mean(axis=2)
+        q = g[r0:r1].mean(axis=0)
+        lv = float(np.median(q))
+        prev = pos[-1]
+        cur = []
+        for k, c in enumerate(prev):
+            guess = c if np.isfinite(c) else next((x[k] for x in reversed(pos)
+                                                   if np.isfinite(x[k])), caps[k])
+            cur.append(_dip_centroid(q, guess, half, lv))
+        pos.append(cur)
+    P = np.array(pos, float)
+    x_px = P.mean(axis=1)
+    length = P[:, 1] - P[:, 0]
+    bad = ~np.isfinite(length) | (np.abs(length - np.nanmedian(length)) > 2.0)
+    x_px[bad] = np.nan
+    x_m = (x_px - np.nanmean(x_px)) * m_per_px
+    return x_m, {"band_rows": (int(r0), int(r1)), "wall_px": caps,
+                 "length_px": float(np.nanmedian(length)), "n_lost": int(bad.sum())}
+
+
+def track_jar_video(path, m_per_px: float, band=None):
+    """:func:`track_jar` on a video file."""
+    cap = open_video(path)
+    try:
+        return track_jar(iter_gray(cap), m_per_px, band=band)
+    finally:
+        cap.release()
+
+
 def write_track(track: pd.DataFrame, out) -> Path:
     """Write a track CSV atomically (temp file, then rename)."""
     out = Path(out)
@@ -995,7 +1121,8 @@ def write_track(track: pd.DataFrame, out) -> Path:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m analysis.tracking",
                                 description="Track one ball in a high-speed video -> track CSV "
-                                            "(t_s, x_m, y_m, quality, x_px, y_px, r_px).")
+                                            "(t_s, x_m, y_m, quality, x_px, y_px, r_px "
+                                            "[, jar_x_m]).")
     p.add_argument("video")
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: sidecar/video)")
     p.add_argument("--ball-diameter-mm", type=float, default=None,
@@ -1006,6 +1133,12 @@ def main(argv=None) -> int:
                         "whole window, the earlier default), 'contour' (OpenCV contours)")
     p.add_argument("--mosse-every", type=int, default=TrackerSettings.mosse_every,
                    help="update MOSSE on every this-many-th frame (default %(default)s)")
+    p.add_argument("--jar", action="store_true",
+                   help="also follow the jar by its end walls (lab-frame video): column jar_x_m, "
+                        "for the impact observables (python -m analysis.flights)")
+    p.add_argument("--jar-band", type=int, nargs=2, metavar=("ROW0", "ROW1"), default=None,
+                   help="image rows where the jar's end walls are followed (default: found, "
+                        "just inside the jar's bottom wall)")
     p.add_argument("--out", required=True, help="track CSV to write")
     a = p.parse_args(argv)
     try:
@@ -1013,7 +1146,9 @@ def main(argv=None) -> int:
                           ball_diameter_m=None if a.ball_diameter_mm is None
                           else a.ball_diameter_mm * 1e-3, m_per_px=a.m_per_px,
                           settings=TrackerSettings(rim_method=a.rim_method,
-                                                   mosse_every=a.mosse_every))
+                                                   mosse_every=a.mosse_every),
+                          jar=a.jar or a.jar_band is not None,
+                          jar_band_rows=None if a.jar_band is None else tuple(a.jar_band))
         write_track(res.track, a.out)
     except (TrackingError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -1021,6 +1156,10 @@ def main(argv=None) -> int:
     print(f"{a.out}: {res.n_frames} frames, {res.n_lost} lost, {res.n_reacquired} reacquired, "
           f"scale {res.m_per_px * 1e3:.5f} mm/px ({res.scale_source}, ball "
           f"{res.ball_diameter_px:.2f} px), {res.n_frames / res.wall_s:.0f} frames/s")
+    if "jar" in res.params:
+        j = res.params["jar"]
+        print(f"jar: end walls followed in rows {j['band_rows'][0]}-{j['band_rows'][1]}, "
+              f"{j['length_px']:.2f} px apart, {j['n_lost']} frame(s) lost")
     return 0
 
 

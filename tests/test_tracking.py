@@ -210,3 +210,47 @@ def test_cli_rim_method_and_bad_mosse_every(video30, tmp_path, capsys):
                  "--out", str(bad)]) == 2
     assert "mosse_every" in capsys.readouterr().err
     assert not bad.exists()
+
+
+def test_jar_is_followed_by_its_end_walls(video30):
+    """track_jar: the band just inside the jar's bottom wall is found, both end walls are
+    followed to < 0.1 px rms (sub-pixel centroids of their dips), the result is the zero-mean
+    jar displacement."""
+    from analysis.tracking import track_jar_video
+    path, truth, _ = video30
+    x, info = track_jar_video(path, 4e-4)
+    tj = truth["jar_x_m"].to_numpy() - truth["jar_x_m"].mean()
+    err_px = (x - tj) / 4e-4
+    assert info["n_lost"] == 0 and len(x) == len(truth)
+    assert np.sqrt(np.mean(err_px ** 2)) < 0.1
+    # wall centres: the inner length plus one wall thickness (half a wall outside each end)
+    assert info["length_px"] == pytest.approx(0.042 / 4e-4 + small_cam().jar_wall_px, abs=0.1)
+
+
+def test_impact_observables_from_a_video_with_the_jar(tmp_path, capsys):
+    """Video -> ball and jar tracks (--jar) -> analysis.flights: the apparent restitution of a
+    periodic e = 0.3 bounce and the jar amplitude are read back from the film."""
+    from analysis.flights import flight_observables_frame
+    b = bounce_track(25.0, 0.3, restitution=0.3, mode="periodic")
+    path = tmp_path / "e30.mkv"
+    render_video(b, path, small_cam(), seed=4)
+    out = tmp_path / "track.csv"
+    assert main([str(path), "--fps", "2134", "--m-per-px", "4e-4", "--jar", "--out",
+                 str(out)]) == 0
+    assert "jar: end walls followed" in capsys.readouterr().out
+    tk = pd.read_csv(out)
+    assert "jar_x_m" in tk.columns and tk["jar_x_m"].notna().all()
+    res = flight_observables_frame(tk, 25.0)
+    assert res.values["e_app"] == pytest.approx(0.3, abs=0.02)
+    assert res.values["jar_amplitude_m"] == pytest.approx(0.0135, rel=0.01)
+
+
+def test_jar_not_found_and_bad_band(tmp_path, capsys):
+    from analysis.tracking import JarNotFoundError, track_jar
+    blank = [np.full((64, 128), 90, np.uint8) for _ in range(3)]
+    with pytest.raises(JarNotFoundError):
+        track_jar(blank, 4e-4)
+    with pytest.raises(JarNotFoundError, match="outside the frame"):
+        track_jar(blank, 4e-4, band=(60, 80))
+    with pytest.raises(JarNotFoundError, match="no frame"):
+        track_jar([], 4e-4)
