@@ -394,6 +394,18 @@ class _Problem:
             self._cache[key] = vals
         return self._cache[key]
 
+    def profiled_start(self, theta, name, strength):
+        """Base parameters refitted with effect ``name`` held at ``strength``: a starting point
+        for a joint fit that does not begin where the calibration without the effect sat (an
+        interpolated response can pull the strength back into a nearer minimum from there)."""
+        keep = dict(self.fixed)
+        self.fixed[name] = strength
+        try:
+            f = self.fit(theta)
+        finally:
+            self.fixed = keep
+        return {p.name: f.params[p.name] for p in self.base}
+
     def penalty(self, effects):
         """sum log(sigma^2 / sigma_0^2) at these effect strengths (0 without ``effect_se``)."""
         if self.effect_se is None:
@@ -678,7 +690,8 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         for s0, c0 in _scan_starts(prob, theta_c, name, J, exclude=(start,)):
             if c0 >= fit.objective:
                 continue                  # its (linear) profile is already worse: no fit
-            f0 = prob.fit(theta_c, effect=name, start_strength=s0)
+            f0 = prob.fit(prob.profiled_start(theta_c, name, s0), effect=name,
+                          start_strength=s0)
             if f0.objective < fit.objective:
                 fit = f0
         fits[name] = fit
@@ -905,10 +918,12 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
     theta_c = {k: before.params[k] for k in theta0}
     starts = [0.5 * (e.null + e.far) if start_strength is None else start_strength,
               e.null + 0.05 * (e.far - e.null)]
-    starts += [s0 for s0, _ in _scan_starts(prob, theta_c, name, before.jac.to_numpy(),
-                                            exclude=starts)]
-    after = min((prob.fit(theta_c, effect=name, start_strength=s) for s in starts),
-                key=lambda f: f.objective)
+    scan = [s0 for s0, _ in _scan_starts(prob, theta_c, name, before.jac.to_numpy(),
+                                         exclude=starts)]
+    fits = [prob.fit(theta_c, effect=name, start_strength=s) for s in starts]
+    fits += [prob.fit(prob.profiled_start(theta_c, name, s), effect=name, start_strength=s)
+             for s in scan]
+    after = min(fits, key=lambda f: f.objective)
     stages = [("baseline", baseline, 0), ("calibrated", before, len(prob.base)),
               ("with %s" % name, after, len(prob.base) + 1)]
     stair = pd.DataFrame([{"stage": s, "chi2": f.chi2, "dof": f.dof, "chi2_dof": f.chi2_dof,
