@@ -654,16 +654,22 @@ class TwinModel:
         # 20.6 mm ball, 0.6-1.3 % for the 17.5 mm one), so pooled over every library label (each
         # label's seeds scatter alike; 2 seeds x 7 labels) rather than over the conditions;
         # floors: 0.25 % of v_mean and 1 /s of f_col (a 0.5 s record counts in steps of 2 /s)
-        rel = (summ["v_sd_m_s"] / summ["v_mean_m_s"]) ** 2
+        # a level whose seeds split between the two impact patterns scatters by the jump
+        # between two motions, not by one motion's chaos: left out of the pooling
+        pure = summ
+        if "n_late_pattern" in summ.columns:
+            nl = summ["n_late_pattern"]
+            pure = summ[(nl == 0) | (nl == summ["n"])]
+        rel = (pure["v_sd_m_s"] / pure["v_mean_m_s"]) ** 2
         # ... and never below the anchor's own scatter there (f_col has heavy tails: one anchor
         # seed with a chatter episode counts 74 /s where the others count 60)
         own_v = np.nan_to_num((a["v_sd_m_s"] / a["v_mean_m_s"]).to_numpy(float))
         own_f = np.nan_to_num(a["f_col_sd_hz"].to_numpy(float))
-        self.v_rel_sd_cond = np.fmax.reduce([np.sqrt(rel.groupby(summ["condition_id"]).mean()
+        self.v_rel_sd_cond = np.fmax.reduce([np.sqrt(rel.groupby(pure["condition_id"]).mean()
                                                      .loc[cids].to_numpy(float)), own_v,
                                              np.full(len(cids), V_REL_SD_FLOOR)])
         self.v_rel_sd = float(np.sqrt(np.mean(self.v_rel_sd_cond ** 2)))
-        f_var = (summ["f_col_sd_hz"] ** 2).groupby(summ["condition_id"]).mean()
+        f_var = (pure["f_col_sd_hz"] ** 2).groupby(pure["condition_id"]).mean()
         self.f_col_sd_hz = np.fmax.reduce([np.sqrt(f_var.loc[cids].to_numpy(float)), own_f,
                                            np.full(len(cids), F_COL_SD_FLOOR_HZ)])
         self.sig = {}
@@ -679,7 +685,7 @@ class TwinModel:
         self.em = emulator if emulator is not None else base_emulator()
         X = self._em_inputs(self.theta_ref)
         self.em_ref = self.em.predict(X)
-        self._init_flights(summ, a, cids, flight_conditions, flight_emulator)
+        self._init_flights(summ, a, cids, flight_conditions, flight_emulator, pure)
         self.mass_kg = (STEEL_DENSITY_KG_M3 * math.pi / 6.0
                         * (self.conditions["ball_diameter_mm"].to_numpy(float) * 1e-3) ** 3)
         self.yield_times_min = {k: list(v) for k, v in (yield_times_min or {}).items()}
@@ -692,7 +698,7 @@ class TwinModel:
         self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
         self._kin = candidates("kinetics")
 
-    def _init_flights(self, summ, a, cids, flight_conditions, emulator):
+    def _init_flights(self, summ, a, cids, flight_conditions, emulator, pure=None):
         from analysis.flights import FLIGHT_OBSERVABLES
         self.flight_obs = tuple(FLIGHT_OBSERVABLES)
         self.flight_conditions = [c for c in cids if c in set(flight_conditions or ())]
@@ -710,7 +716,8 @@ class TwinModel:
         self.fl_anchor = a[fo].to_numpy(float)
         if not np.all(np.isfinite(self.fl_anchor)):
             raise ValueError("the library's anchor has no impact observables at some condition")
-        sd = summ[[k + "_sd" for k in fo]].pow(2).groupby(summ["condition_id"]).mean() \
+        pure = summ if pure is None else pure            # single-pattern levels only
+        sd = pure[[k + "_sd" for k in fo]].pow(2).groupby(pure["condition_id"]).mean() \
             .loc[cids].to_numpy(float) ** 0.5
         floors = np.array([FLIGHT_SD_FLOORS[k] for k in fo])
         self.fl_sd_cond = np.fmax(np.nan_to_num(sd), floors)

@@ -462,3 +462,25 @@ def test_a_late_branch_allows_a_step_between_levels():
     loc = rng.uniform(0.5, 1.0, 200000)
     true = np.where(0.6 >= loc, 0.2, 0.1)
     assert np.sqrt(np.mean((true - 0.12) ** 2)) == pytest.approx(sd[1, 0], rel=0.01)
+
+
+def test_a_level_split_between_patterns_is_not_pooled_as_scatter(fake):
+    """One motion's run-to-run scatter is pooled over the library's levels; a level whose seeds
+    split between the impact patterns scatters by the jump between two motions and is left
+    out (else one such level inflates a condition's sd several-fold)."""
+    summ, meta = fake["library"]
+    conds = pd.DataFrame(meta["conditions"])
+    base = twin_model.TwinModel(conds, {}, library=(summ, meta), emulator=fake["emulator"])
+    bad = summ.copy()
+    i = bad.index[(bad["label"] == "jar_compliance") & (bad["condition_id"] == "f30_d20.6")][0]
+    bad.loc[i, "v_sd_m_s"] = 0.2 * bad.loc[i, "v_mean_m_s"]
+    bad.loc[i, "f_col_sd_hz"] = 20.0
+    bad["n_late_pattern"] = 0
+    bad.loc[i, "n_late_pattern"] = 1                    # 1 of its seeds in the other pattern
+    m = twin_model.TwinModel(conds, {}, library=(bad, meta), emulator=fake["emulator"])
+    assert m.v_rel_sd_cond == pytest.approx(base.v_rel_sd_cond)
+    assert m.f_col_sd_hz == pytest.approx(base.f_col_sd_hz)
+    bad.loc[i, "n_late_pattern"] = int(bad.loc[i, "n"])  # all late: one motion, pooled
+    m = twin_model.TwinModel(conds, {}, library=(bad, meta), emulator=fake["emulator"])
+    k = list(conds["condition_id"]).index("f30_d20.6")
+    assert m.v_rel_sd_cond[k] > 2 * base.v_rel_sd_cond[k]
