@@ -285,8 +285,8 @@ def _write_page(out_dir, ds, cmp0, diag, added, stair, reveal, times, truth):
              "A secret effect was switched on in the twin; the dataset (v_mean, f_col, yields at "
              "8 conditions, with noise; a track of the ball and the jar per condition, read by "
              "analysis.flights into impact observables) was then compared, diagnosed and "
-             "corrected blind. Compare shows v_mean, f_col and the yields; diagnose and the "
-             "chi2/dof staircase use the impact observables too.", "",
+             "corrected blind. Compare, diagnose and the chi2/dof staircase all read the "
+             "impact observables beside v_mean, f_col and the yields.", "",
              "## 1. Compare: the calibrated twin without effects", "",
              "chi2/dof = %.2f (dof %d). Where it fails:" % (cmp0.chi2 / max(cmp0.dof, 1),
                                                            cmp0.dof), "", "```",
