@@ -37,7 +37,8 @@ The method
    * score test ``S = (g_perp . r)^2 / |g_perp|^2`` (r = whitened residual, measured - model), the
      linearised strength ``s_lin = null + (g_perp . r) / |g_perp|^2 +- 1 / |g_perp|``;
    * joint fit of base parameters and strength (bounded; started from s_lin, from near null
-     and from the best local minima of a chi2 scan over the strength's range, the best optimum
+     and from the best local minima of a scan over the strength's range with the base
+     parameters profiled out, each such start refitted at its strength first; the best optimum
      kept: an interpolated response can have several minima), chi2 gain ``delta_chi2`` and its
      covariance (Gauss-Newton, ``(J_full^T J_full)^-1``): strength +- se, max |correlation| of
      the strength with a base parameter; BIC gain ``delta_chi2 - ln n``;
@@ -524,10 +525,11 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
     """Starting strengths for the fit of effect ``name``: the ``n_best`` points of lowest
     profile chi2 on an even grid of ``n_scan`` strengths over its range, null excluded, as
     (strength, profile chi2) pairs; local minima only, none within half a grid step of
-    ``exclude``. The base parameters are
-    profiled out linearly: the whitened residual at (``theta``, strength) with its component
-    along ``J`` (the whitened Jacobian of the base parameters at ``theta``) removed, so a
-    calibration that absorbed part of the effect does not hide a distant minimum."""
+    ``exclude``. The base parameters are profiled out linearly: the whitened residual at
+    (``theta``, strength) with its component along ``J`` (the whitened Jacobian of the base
+    parameters at ``theta``, rescaled to that strength's sigma) removed, so a calibration that
+    absorbed part of the effect does not hide a distant minimum; with ``effect_se`` the
+    likelihood's log-sigma penalty is added."""
     e = prob.effects[name]
     n_scan = SCAN_POINTS if n_scan is None else int(n_scan)
     grid = np.linspace(e.lower, e.upper, n_scan)
