@@ -564,13 +564,13 @@ def _curvatures(xs, ds):
     two spacings (|f''| / 2 for a quadratic), a segment taking the larger of its two ends; zero
     with fewer than three points."""
     k = len(xs)
+    if k < 2:
+        return np.zeros((0, ds.shape[1]))
     c = np.zeros((k, ds.shape[1]))
     for j in range(1, k - 1):
         a, b = xs[j] - xs[j - 1], xs[j + 1] - xs[j]
         line = ds[j - 1] + (ds[j + 1] - ds[j - 1]) * a / (a + b)
         c[j] = np.abs(ds[j] - line) / (a * b)
-    if k < 2:
-        return np.zeros((0, ds.shape[1]))
     return np.maximum(c[:-1], c[1:])
 
 
@@ -682,6 +682,7 @@ class TwinModel:
             self.sig[c.name] = _levels(d, cids, ["v_mean_m_s", "f_col_hz"], self.anchor,
                                        self.patterns)
         self.sig_curv = {k: [_curvatures(xs, ds) for xs, ds in v] for k, v in self.sig.items()}
+        self._gp_cache = {}
         self.em = emulator if emulator is not None else base_emulator()
         X = self._em_inputs(self.theta_ref)
         self.em_ref = self.em.predict(X)
@@ -748,13 +749,12 @@ class TwinModel:
     def _gp(self, em, theta):
         """em's prediction at ``theta``, cached (a strength scan or a finite difference in a
         strength calls predict many times at the same base parameters)."""
-        cache = self.__dict__.setdefault("_gp_cache", {})
         key = (id(em), tuple(float(theta.get(k, self.theta_ref[k])) for k in EM_PARAMS))
-        if key not in cache:
-            if len(cache) > 512:
-                cache.clear()
-            cache[key] = em.predict(self._em_inputs(theta))
-        return cache[key]
+        if key not in self._gp_cache:
+            if len(self._gp_cache) > 512:
+                self._gp_cache.clear()
+            self._gp_cache[key] = em.predict(self._em_inputs(theta))
+        return self._gp_cache[key]
 
     def _em_inputs(self, theta):
         c = self.conditions
