@@ -63,13 +63,30 @@ def predictions_table(model, theta, effects=None):
     return pd.DataFrame(rows)
 
 
+def runs_in_pattern(condition_ids, v_in_m_s, patterns, anchor_v_in_m_s):
+    """Boolean mask of the runs to keep: those in their condition's measured impact pattern
+    ('late' when the approach speed is below LATE_V_IN_FRAC x the anchor's there), or all of a
+    condition's runs when none is in it."""
+    cid = pd.Series(list(condition_ids))
+    ref = pd.Series(anchor_v_in_m_s).reindex(cid).to_numpy(float)
+    late = np.asarray(v_in_m_s, float) < twin_model.LATE_V_IN_FRAC * ref
+    want = np.array([patterns.get(c, "normal") == "late" for c in cid])
+    match = late == want
+    has = pd.Series(match).groupby(cid).transform("any").to_numpy()
+    return match | ~has
+
+
 def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept, yield_times,
                      replicates=2, workers=2, seed0=500, runs_dir=None, runner=None,
-                     flights=False):
+                     flights=False, patterns=None, library=None):
     """compare-style predictions from real twin runs (mean and sd over ``replicates`` seeds);
     yields from the runs' mean E_kin and f_col through the powder line or a kinetics effect;
     with ``flights`` also the impact observables of the runs' recordings (analysis.flights;
-    rows with those observable names, none for runs without a trajectory)."""
+    rows with those observable names, none for runs without a trajectory). With ``patterns``
+    (condition_id -> 'normal' / 'late', the measured impact pattern, see
+    :func:`analysis.twin_model.impact_patterns`) a condition takes only its runs in that pattern
+    when it has any (jar compliance makes the flight bistable: two motions are never
+    averaged); ``library`` gives the anchor's approach speeds that class a run."""
     from effects import load_effects
     from analysis import kinetics
     from analysis.sweep import run_sweep
@@ -86,6 +103,12 @@ def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept,
     if not res.ok:
         raise RuntimeError("verification runs failed:\n%s" % res.failed()[["run_id", "error"]])
     t = res.table.reset_index(drop=True).assign(condition_id=owner)
+    fl_all = twin_model.run_flights(list(t["run_id"]), runs_dir) if flights else None
+    if flights and patterns:
+        summ, _ = library if library is not None else twin_model.load_library()
+        ref = summ[summ["label"] == "none"].set_index("condition_id")["v_in_m_s"]
+        keep = runs_in_pattern(t["condition_id"], fl_all["v_in_m_s"], patterns, ref)
+        t, fl_all = t[keep].reset_index(drop=True), fl_all[keep].reset_index(drop=True)
     kin = load_effects(kin_spec, side="kinetics") if kin_spec else []
     rows = []
     cond = conditions.set_index("condition_id")
@@ -107,7 +130,7 @@ def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept,
             rows.append({"condition_id": cid, "observable": "yield_pct", "mean": float(x),
                          "sd": float(x_sd), "n_replicates": len(g), "time_min": float(tm)})
         if flights:
-            fl = twin_model.run_flights(list(g["run_id"]), runs_dir).dropna()
+            fl = fl_all[fl_all["run_id"].isin(g["run_id"])].dropna()
             for k in (c for c in fl.columns if c != "run_id"):
                 if len(fl):
                     rows.append({"condition_id": cid, "observable": k, "mean": fl[k].mean(),
@@ -229,7 +252,8 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
         pred = twin_predictions(ds.conditions, theta, dem, kin, p.get("slope_pct_per_kj", 0.0),
                                 p.get("intercept_pct", 0.0), model.yield_times_min,
                                 replicates=replicates, workers=workers, runner=runner,
-                                runs_dir=runs_dir, flights=bool(model.flight_conditions))
+                                runs_dir=runs_dir, flights=bool(model.flight_conditions),
+                                patterns=prob.get("patterns"), library=library)
         n_fit = len(prob["base_params"]) + 1
         cmp1 = compare(ds, pred, n_fitted_params=n_fit)
         write_compare(cmp1, ds, out_dir / "compare_after_twin")

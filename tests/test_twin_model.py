@@ -484,3 +484,17 @@ def test_a_level_split_between_patterns_is_not_pooled_as_scatter(fake):
     m = twin_model.TwinModel(conds, {}, library=(bad, meta), emulator=fake["emulator"])
     k = list(conds["condition_id"]).index("f30_d20.6")
     assert m.v_rel_sd_cond[k] > 2 * base.v_rel_sd_cond[k]
+
+
+def test_a_twin_rerun_keeps_the_runs_in_the_measured_pattern():
+    """hidden_demo.runs_in_pattern: a condition measured 'late' keeps its late runs (approach
+    speed < 60 % of the anchor's), a normal one its normal runs, one with no run in its pattern
+    keeps all (flagged by the caller's n_replicates, never dropped)."""
+    from analysis.hidden_demo import runs_in_pattern
+    cid = ["a", "a", "a", "b", "b", "c", "c"]
+    v_in = [4.0, 1.2, 1.3, 4.1, 1.0, 4.0, 4.2]
+    ref = {"a": 4.0, "b": 4.0, "c": 4.0}
+    keep = runs_in_pattern(cid, v_in, {"a": "late", "b": "normal", "c": "late"}, ref)
+    assert list(keep) == [False, True, True, True, False, True, True]
+    assert runs_in_pattern(cid, v_in, {}, ref).tolist() == [True, False, False, True, False,
+                                                            True, True]
