@@ -11,7 +11,8 @@ Input
   latter with ``time_min``), or an impact observable of a track that carries the jar
   (``e_app``, ``v_in_m_s``, ``impact_phase_rad``, ``jar_amplitude_m``, ``vy_rms_m_s``: see
   :mod:`analysis.flights`; the measured side is read from the dataset's tracks, and its sigma
-  also holds one twin run's sd, since a track is one realisation of the chaotic motion). ``mean`` and ``sd`` are the mean and the standard deviation OVER
+  also holds one twin run's sd, since a track is one realisation of the chaotic motion).
+  ``mean`` and ``sd`` are the mean and the standard deviation OVER
   REPLICATE RUNS of the twin (runs that differ only in their seed / initial state), ``n_replicates``
   how many runs. The twin is chaotic: replicates scatter by 1-3 % in mean speed (DESIGN.md), as
   much as many physical effects move it, so the model's own noise enters every uncertainty.

@@ -69,7 +69,7 @@ def runs_in_pattern(condition_ids, v_in_m_s, patterns, anchor_v_in_m_s):
     condition's runs when none is in it."""
     cid = pd.Series(list(condition_ids))
     ref = pd.Series(anchor_v_in_m_s).reindex(cid).to_numpy(float)
-    late = np.asarray(v_in_m_s, float) < twin_model.LATE_V_IN_FRAC * ref
+    late = twin_model.in_late_pattern(v_in_m_s, ref)
     want = np.array([patterns.get(c, "normal") == "late" for c in cid])
     match = late == want
     has = pd.Series(match).groupby(cid).transform("any").to_numpy()

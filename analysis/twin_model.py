@@ -210,6 +210,13 @@ def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None,
     return rows
 
 
+def in_late_pattern(v_in_m_s, anchor_v_in_m_s):
+    """True where a run's (or a track's) approach speed is below LATE_V_IN_FRAC x the library
+    anchor's at its condition: the 'late' impact pattern (the ball meets a wall moving its way).
+    The one rule that classes library runs, measured tracks and verification reruns alike."""
+    return np.asarray(v_in_m_s, float) < LATE_V_IN_FRAC * np.asarray(anchor_v_in_m_s, float)
+
+
 def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
     """Impact observables (:mod:`analysis.flights`) of cached twin runs, one row per run id
     (NaN where the operator finds no end-to-end impacts, e.g. a run in another motion mode, or
@@ -260,7 +267,8 @@ def summarise_library(runs: pd.DataFrame) -> pd.DataFrame:
         # bistable: 4.4 against 1.3 m/s at 30 Hz, 20.6 mm); a level whose seeds differ is
         # averaged over two motions - flagged, never silent
         ref = a["v_in_m_s"]
-        late = runs["v_in_m_s"] < LATE_V_IN_FRAC * ref.reindex(runs["condition_id"]).to_numpy()
+        late = pd.Series(in_late_pattern(runs["v_in_m_s"], ref.reindex(runs["condition_id"])),
+                         index=runs.index)
         n_late = late.groupby([runs["label"], runs["strength"], runs["condition_id"]]).sum()
         key = pd.MultiIndex.from_frame(s[["label", "strength", "condition_id"]])
         s["n_late_pattern"] = n_late.reindex(key).to_numpy().astype(int)
@@ -920,7 +928,7 @@ def impact_patterns(flights, library=None):
     if "v_in_m_s" not in a.columns:
         return {}
     v = flights[flights["observable"] == "v_in_m_s"].set_index("condition_id")["value"]
-    return {cid: ("late" if x < LATE_V_IN_FRAC * float(a.loc[cid, "v_in_m_s"]) else "normal")
+    return {cid: ("late" if in_late_pattern(x, a.loc[cid, "v_in_m_s"]) else "normal")
             for cid, x in v.items() if cid in a.index}
 
 
