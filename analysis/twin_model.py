@@ -64,6 +64,8 @@ OUTPUTS = ("v_mean_m_s", "f_col_hz")
 #: the base parameters the emulators take (with frequency and ball diameter)
 EM_PARAMS = ("restitution", "static_friction", "rolling_friction", "amplitude_m")
 STEEL_DENSITY_KG_M3 = 7800.0  # analysis.kinetics.STEEL_DENSITY_KG_M3 (checked in the tests)
+#: calibration prior bounds of the DEM base parameters (declared in analysis.calibrate)
+from analysis.calibrate import CALIBRATED as BASE_BOUNDS  # noqa: E402
 V_REL_SD_FLOOR = 0.0025       # smallest replicate sd of one run's v_mean (relative)
 F_COL_SD_FLOOR_HZ = 1.0       # smallest replicate sd of one run's f_col [1/s]
 #: signature strengths, fractions of each DEM effect's s_max: the response between them (and
@@ -476,6 +478,33 @@ def write_page(summ, meta, folder):
     (Path(folder) / "README.md").write_text("\n".join(lines))
 
 
+def library_at(conditions, library):
+    """The library's summary rows at ``conditions``, matched by physics (frequency, ball
+    diameter, stroke where stated - never by the id text) and relabelled with the dataset's
+    condition ids. Raises ValueError naming the conditions the library has no runs at."""
+    from analysis.conditions import label, match_conditions, physics_table
+    summ, meta = library
+    if meta.get("conditions"):
+        amp_mm = 1e3 * float(meta["theta_ref"]["amplitude_m"])
+        m = match_conditions(conditions, pd.DataFrame(meta["conditions"]),
+                             default_amplitude_mm=amp_mm)
+    else:       # a library that does not state its physics: ids are all there is
+        ids = set(summ["condition_id"])
+        m = {c: (c if c in ids else None) for c in conditions["condition_id"]}
+    missing = [c for c, k in m.items() if k is None]
+    if missing:
+        ph = physics_table(conditions).set_index("condition_id")
+        words = ["%s (%s)" % (c, label(ph.loc[c, "frequency_hz"], ph.loc[c, "ball_diameter_mm"],
+                                       ph.loc[c, "amplitude_mm"])) for c in missing]
+        raise ValueError("the signature library has no runs at condition(s) %s; `python -m "
+                         "analysis.loop --dataset DIR` builds the runs a dataset's conditions "
+                         "need" % ", ".join(words))
+    parts = []
+    for cid, lib_id in m.items():
+        parts.append(summ[summ["condition_id"] == lib_id].assign(condition_id=cid))
+    return pd.concat(parts, ignore_index=True)
+
+
 def load_library(lib_dir=SIGNATURE_DIR):
     """(summary table, library.json dict) of a built signature library."""
     lib_dir = Path(lib_dir)
@@ -551,7 +580,7 @@ def _levels(d, cids, cols, anchor, patterns=None):
     return out
 
 
-def _interp_levels(sig, s):
+def interp_levels(sig, s):
     """(n_cond, n_cols) change at strength ``s``: per condition piecewise linear through its
     levels, the last segment extended beyond the top, flat below a late branch's first level."""
     rows = []
@@ -566,7 +595,7 @@ def _interp_levels(sig, s):
     return np.array(rows)
 
 
-def _curvatures(xs, ds):
+def curvatures(xs, ds):
     """(k - 1, n_cols) curvature scale of each segment of one condition's signature: at every
     interior level the deviation from the line through its neighbours over the product of its
     two spacings (|f''| / 2 for a quadratic), a segment taking the larger of its two ends; zero
@@ -582,8 +611,8 @@ def _curvatures(xs, ds):
     return np.maximum(c[:-1], c[1:])
 
 
-def _interp_sd(sig, curv, s, rough=None):
-    """(n_cond, n_cols) standard error of :func:`_interp_levels` at strength ``s``: zero at a
+def interp_sd(sig, curv, s, rough=None):
+    """(n_cond, n_cols) standard error of :func:`interp_levels` at strength ``s``: zero at a
     level, C (s - x_k) (x_k+1 - s) inside a segment (exact for a quadratic response, a scale
     for a rougher one), C (s - x_k-1)(s - x_k) beyond the top; below a late branch's first level
     (held flat) the first segment's slope times the distance is added. Where ``rough[i]`` (a
@@ -649,10 +678,7 @@ class TwinModel:
             raise ValueError("unknown base parameter(s) %s" % sorted(unknown))
         self.conditions = conditions.reset_index(drop=True)
         cids = list(self.conditions["condition_id"])
-        lib_ids = set(summ["condition_id"])
-        missing = [c for c in cids if c not in lib_ids]
-        if missing:
-            raise ValueError("the signature library has no runs at condition(s) %s" % missing)
+        summ = library_at(self.conditions, (summ, meta))
         a = summ[summ["label"] == "none"].set_index("condition_id").loc[cids]
         self.anchor = a[["v_mean_m_s", "f_col_hz"]].to_numpy(float)       # (n_cond, 2)
         # standard errors as for a 2-seed mean (the signatures' seeds): the anchor's own se is
@@ -689,7 +715,7 @@ class TwinModel:
                 raise ValueError("the signature library has no runs of %s" % c.name)
             self.sig[c.name] = _levels(d, cids, ["v_mean_m_s", "f_col_hz"], self.anchor,
                                        self.patterns)
-        self.sig_curv = {k: [_curvatures(xs, ds) for xs, ds in v] for k, v in self.sig.items()}
+        self.sig_curv = {k: [curvatures(xs, ds) for xs, ds in v] for k, v in self.sig.items()}
         self._gp_cache = {}
         self.em = emulator if emulator is not None else base_emulator()
         X = self._em_inputs(self.theta_ref)
@@ -736,7 +762,7 @@ class TwinModel:
                 continue
             self.fl_sig[c.name] = _levels(summ[summ["label"] == c.name], cids, fo,
                                           self.fl_anchor, self.patterns)
-        self.fl_curv = {k: [_curvatures(xs, ds) for xs, ds in v]
+        self.fl_curv = {k: [curvatures(xs, ds) for xs, ds in v]
                         for k, v in self.fl_sig.items()}
         self.fl_em = emulator if emulator is not None else flight_emulator()
         self.fl_em_ref = self.fl_em.predict(self._em_inputs(self.theta_ref))
@@ -751,7 +777,7 @@ class TwinModel:
         y = anchor + (self._gp(em, theta) - em_ref)
         for name, s in (effects or {}).items():
             if name in sigs and s:
-                y = y + _interp_levels(sigs[name], float(s))
+                y = y + interp_levels(sigs[name], float(s))
         return y
 
     def _gp(self, em, theta):
@@ -788,9 +814,7 @@ class TwinModel:
         calibration's prior) and, with yields, the powder line's slope and intercept."""
         from analysis.diagnose import BaseParameter
         from analysis import kinetics
-        bounds = {"restitution": (0.1, 0.7), "static_friction": (0.3, 0.7),
-                  "rolling_friction": (0.1, 0.5), "amplitude_m": (0.010, 0.016)}
-        out = [BaseParameter(k, self.theta_ref[k], *bounds[k]) for k in self.base_names]
+        out = [BaseParameter(k, self.theta_ref[k], *BASE_BOUNDS[k]) for k in self.base_names]
         if self.has_yields:
             out += [BaseParameter("slope_pct_per_kj", kinetics.PAPER_SLOPE_PCT_PER_KJ, 1.0, 30.0),
                     BaseParameter("intercept_pct", kinetics.PAPER_INTERCEPT_PCT, -20.0, 20.0)]
@@ -870,7 +894,7 @@ class TwinModel:
 
     def resolution_se(self, effects):
         """The library's interpolation error per key with DEM ``effects`` {name: strength} on
-        (:func:`_interp_sd` of each signature, summed in quadrature over the effects and
+        (:func:`interp_sd` of each signature, summed in quadrature over the effects and
         propagated to the yields like :meth:`model_se`): zero at the library's levels, largest
         between levels whose response bends; in a condition measured in the late impact pattern
         (jar compliance's second flight, whose impact observables jump between the library's
@@ -881,9 +905,9 @@ class TwinModel:
         fvar = np.zeros((n, len(self.flight_obs))) if self.flight_conditions else None
         rough = [self.patterns.get(c) == "late" for c in self.conditions["condition_id"]]
         for name, st in dem:
-            var += _interp_sd(self.sig[name], self.sig_curv[name], st, rough) ** 2
+            var += interp_sd(self.sig[name], self.sig_curv[name], st, rough) ** 2
             if fvar is not None:
-                fvar += _interp_sd(self.fl_sig[name], self.fl_curv[name], st, rough) ** 2
+                fvar += interp_sd(self.fl_sig[name], self.fl_curv[name], st, rough) ** 2
         sd = np.sqrt(var)
         y = self.anchor                 # v, f_col at which the yields' se is propagated
         from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ as slope
@@ -920,10 +944,16 @@ def yield_times_of(dataset):
             for cid, g in dataset.yields.groupby("condition_id", sort=False)}
 
 
-def impact_patterns(flights, library=None):
+def impact_patterns(flights, library=None, conditions=None):
     """condition_id -> 'late' or 'normal': the impact pattern of each measured track (its
-    approach speed against LATE_V_IN_FRAC x the library anchor's there)."""
-    summ, _ = library if library is not None else load_library()
+    approach speed against LATE_V_IN_FRAC x the library anchor's there). With ``conditions``
+    (the dataset's) the library is matched to them by physics; without, by condition id."""
+    library = library if library is not None else load_library()
+    fl_ids = list(dict.fromkeys(flights["condition_id"]))
+    if conditions is None:
+        summ = library[0]
+    else:
+        summ = library_at(conditions[conditions["condition_id"].isin(fl_ids)], library)
     a = summ[summ["label"] == "none"].set_index("condition_id")
     if "v_in_m_s" not in a.columns:
         return {}
@@ -947,7 +977,7 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
         if len(fl):
             obs = pd.concat([obs, fl], ignore_index=True)
             fl_ids = list(dict.fromkeys(fl["condition_id"]))
-    patterns = impact_patterns(fl, library) if fl_ids else {}
+    patterns = impact_patterns(fl, library, dataset.conditions) if fl_ids else {}
     m = TwinModel(dataset.conditions, yield_times_of(dataset), library=library,
                   emulator=emulator, base=base, flight_conditions=fl_ids,
                   flight_emulator=flight_emulator, patterns=patterns)

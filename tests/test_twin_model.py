@@ -386,19 +386,19 @@ def test_signatures_follow_the_measured_impact_pattern():
     sig = twin_model._levels(d, ["a", "b"], ["v_mean_m_s"], anchor, {"b": "late"})
     assert list(sig[0][0]) == [0.0, 0.5]                  # a: normal runs only
     assert list(sig[1][0]) == [1.0]                       # b: its late level only
-    y = twin_model._interp_levels(sig, 0.25)
+    y = twin_model.interp_levels(sig, 0.25)
     assert y[0, 0] == pytest.approx(0.05) and y[1, 0] == pytest.approx(0.6)
-    y = twin_model._interp_levels(sig, 1.0)
+    y = twin_model.interp_levels(sig, 1.0)
     assert y[0, 0] == pytest.approx(0.2) and y[1, 0] == pytest.approx(0.6)
     # without the per-pattern columns: all runs, one branch
     plain = twin_model._levels(d.drop(columns=["v_mean_m_s@normal", "v_mean_m_s@late"]),
                                ["a", "b"], ["v_mean_m_s"], anchor, {"b": "late"})
     assert list(plain[1][0]) == [0.0, 0.5, 1.0]
-    assert twin_model._interp_levels(plain, 0.75)[1, 0] == pytest.approx(0.3)
+    assert twin_model.interp_levels(plain, 0.75)[1, 0] == pytest.approx(0.3)
 
 
 def test_interpolation_error_is_exact_for_a_quadratic_response():
-    """The library's resolution se (_curvatures, _interp_sd) is zero at the levels, equals the
+    """The library's resolution se (curvatures, interp_sd) is zero at the levels, equals the
     true error of linear interpolation for a quadratic response (levels 0, 0.5, 1, 1.5 of
     a s^2), grows beyond the top like linear extrapolation's error, and below a late branch's
     first level (held flat) holds the branch's slope times the distance."""
@@ -406,24 +406,24 @@ def test_interpolation_error_is_exact_for_a_quadratic_response():
     a = np.array([0.3, -2.0])
     ds = np.outer(xs ** 2, a)
     sig = [(xs, ds)]
-    curv = [twin_model._curvatures(xs, ds)]
+    curv = [twin_model.curvatures(xs, ds)]
     for s in (0.1, 0.25, 0.7, 1.2, 1.45):
-        err = np.abs(twin_model._interp_levels(sig, s)[0] - s * s * a)
-        assert twin_model._interp_sd(sig, curv, s)[0] == pytest.approx(err, rel=1e-9)
+        err = np.abs(twin_model.interp_levels(sig, s)[0] - s * s * a)
+        assert twin_model.interp_sd(sig, curv, s)[0] == pytest.approx(err, rel=1e-9)
     for s in xs[1:]:
-        assert twin_model._interp_sd(sig, curv, s)[0] == pytest.approx([0.0, 0.0], abs=1e-12)
-    err = np.abs(twin_model._interp_levels(sig, 1.8)[0] - 1.8 ** 2 * a)
-    assert twin_model._interp_sd(sig, curv, 1.8)[0] == pytest.approx(err, rel=1e-9)
+        assert twin_model.interp_sd(sig, curv, s)[0] == pytest.approx([0.0, 0.0], abs=1e-12)
+    err = np.abs(twin_model.interp_levels(sig, 1.8)[0] - 1.8 ** 2 * a)
+    assert twin_model.interp_sd(sig, curv, 1.8)[0] == pytest.approx(err, rel=1e-9)
     # a late branch (levels 1, 1.5 only, flat below 1): two points, no curvature
     late = [(xs[2:], ds[2:])]
-    lc = [twin_model._curvatures(xs[2:], ds[2:])]
+    lc = [twin_model.curvatures(xs[2:], ds[2:])]
     slope = np.abs(ds[3] - ds[2]) / 0.5
-    assert twin_model._interp_sd(late, lc, 0.6)[0] == pytest.approx(slope * 0.4)
-    assert twin_model._interp_sd(late, lc, 1.2)[0] == pytest.approx([0.0, 0.0])
+    assert twin_model.interp_sd(late, lc, 0.6)[0] == pytest.approx(slope * 0.4)
+    assert twin_model.interp_sd(late, lc, 1.2)[0] == pytest.approx([0.0, 0.0])
     # a rough response (a late branch's e_app: 0.25, -0.06, 0.155) gets a wide band between
     x3 = np.array([0.9375, 1.125, 1.3125])
     d3 = np.array([[0.25], [-0.06], [0.155]])
-    sd = twin_model._interp_sd([(x3, d3)], [twin_model._curvatures(x3, d3)], 1.05)[0, 0]
+    sd = twin_model.interp_sd([(x3, d3)], [twin_model.curvatures(x3, d3)], 1.05)[0, 0]
     assert sd == pytest.approx(0.2625 / 0.1875 ** 2 * (1.05 - 0.9375) * (1.125 - 1.05))
 
 
@@ -452,9 +452,9 @@ def test_a_late_branch_allows_a_step_between_levels():
     a straight (normal) branch keeps zero."""
     xs = np.array([0.0, 0.5, 1.0])
     ds = np.array([[0.0], [0.1], [0.2]])            # straight: no curvature
-    curv = [twin_model._curvatures(xs, ds)] * 2
+    curv = [twin_model.curvatures(xs, ds)] * 2
     sig = [(xs, ds)] * 2
-    sd = twin_model._interp_sd(sig, curv, 0.6, rough=[False, True])
+    sd = twin_model.interp_sd(sig, curv, 0.6, rough=[False, True])
     assert sd[0, 0] == pytest.approx(0.0, abs=1e-12)
     assert sd[1, 0] == pytest.approx(0.1 * np.sqrt(0.2 * 0.8))
     # Monte Carlo: a step from 0.1 to 0.2 at a uniform place in (0.5, 1); linear error rms

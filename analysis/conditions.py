@@ -1,0 +1,136 @@
+"""Conditions are physics, not names.
+
+A measurement condition is what the mill did: the jar's frequency, the ball's diameter and, where a
+dataset states them, the half stroke and the number of balls. Its ``condition_id`` is only a label
+chosen by whoever wrote the dataset: two datasets may call the same physics by different ids, or
+reuse an id for other physics. Everything that pairs a dataset's condition with twin runs goes
+through this module:
+
+* :func:`physics_table` - the physics of each condition, with the defaults filled in;
+* :func:`physics_key` - one canonical text per physics (``f26_d19``, ``f26_d19_a13.1``), the key
+  under which twin runs for a condition are stored;
+* :func:`match_conditions` - which rows of one table have the same physics as rows of another,
+  within the tolerances below (never by id).
+
+Tolerances (:data:`TOLERANCES`): 0.005 Hz, 0.005 mm of ball diameter, 0.005 mm of stroke: below
+what any MM400 user sets or measures, and above the round-off of a CSV.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+#: largest difference that still counts as the same physics
+TOLERANCES = {"frequency_hz": 0.005, "ball_diameter_mm": 0.005, "amplitude_mm": 0.005}
+#: the scene holds one ball (the paper's setting); n_balls other than 1 is refused
+SUPPORTED_N_BALLS = (1,)
+
+
+class ConditionError(ValueError):
+    """A condition the twin cannot represent (the message names the condition)."""
+
+
+def physics_table(conditions: pd.DataFrame) -> pd.DataFrame:
+    """condition_id, frequency_hz, ball_diameter_mm, amplitude_mm (NaN = not stated), n_balls.
+
+    Parameters
+    ----------
+    conditions : DataFrame - a dataset's conditions (condition_id, frequency_hz,
+        ball_diameter_mm and optionally amplitude_mm, n_balls)
+
+    Raises
+    ------
+    ConditionError
+        a condition with n_balls other than 1, or two conditions with the same physics
+    """
+    c = conditions
+    out = pd.DataFrame({
+        "condition_id": c["condition_id"].astype(str).to_numpy(),
+        "frequency_hz": pd.to_numeric(c["frequency_hz"]).to_numpy(float),
+        "ball_diameter_mm": pd.to_numeric(c["ball_diameter_mm"]).to_numpy(float),
+        "amplitude_mm": (pd.to_numeric(c["amplitude_mm"], errors="coerce").to_numpy(float)
+                         if "amplitude_mm" in c.columns else np.full(len(c), np.nan)),
+        "n_balls": (pd.to_numeric(c["n_balls"], errors="coerce").fillna(1).to_numpy(int)
+                    if "n_balls" in c.columns else np.ones(len(c), int)),
+    })
+    bad = out[~out["n_balls"].isin(SUPPORTED_N_BALLS)]
+    if len(bad):
+        r = bad.iloc[0]
+        raise ConditionError("conditions.csv: condition %r has n_balls = %d; the twin's scene "
+                             "holds one ball (n_balls = 1)" % (r["condition_id"], r["n_balls"]))
+    keys = [physics_key(r.frequency_hz, r.ball_diameter_mm, r.amplitude_mm, r.n_balls)
+            for r in out.itertuples()]
+    dup = pd.Series(keys).duplicated(keep=False)
+    if dup.any():
+        ids = list(out.loc[dup.to_numpy(), "condition_id"])
+        raise ConditionError("conditions.csv: conditions %s describe the same physics (%s); "
+                             "merge them" % (ids, keys[int(np.argmax(dup.to_numpy()))]))
+    out["physics_key"] = keys
+    return out
+
+
+def _fmt(x):
+    return ("%.2f" % float(x)).rstrip("0").rstrip(".")
+
+
+def physics_key(frequency_hz, ball_diameter_mm, amplitude_mm=None, n_balls=1) -> str:
+    """Canonical text of a condition's physics: ``f<Hz>_d<mm>[_a<mm>][_n<balls>]``, numbers to
+    0.01 (e.g. ``physics_key(26, 19) == 'f26_d19'``, ``physics_key(22.5, 20.6, 13.1)
+    == 'f22.5_d20.6_a13.1'``). The stroke appears only when stated."""
+    k = "f%s_d%s" % (_fmt(frequency_hz), _fmt(ball_diameter_mm))
+    if amplitude_mm is not None and not (isinstance(amplitude_mm, float) and
+                                         math.isnan(amplitude_mm)):
+        k += "_a%s" % _fmt(amplitude_mm)
+    if int(n_balls) != 1:
+        k += "_n%d" % int(n_balls)
+    return k
+
+
+def same_physics(a, b, default_amplitude_mm=None) -> bool:
+    """True when rows ``a`` and ``b`` (mappings with frequency_hz, ball_diameter_mm and
+    optionally amplitude_mm, n_balls) describe the same physics. A stroke stated on one side only
+    is compared with ``default_amplitude_mm`` (None: an unstated stroke matches any)."""
+    if abs(float(a["frequency_hz"]) - float(b["frequency_hz"])) > TOLERANCES["frequency_hz"]:
+        return False
+    if abs(float(a["ball_diameter_mm"]) - float(b["ball_diameter_mm"])) > \
+            TOLERANCES["ball_diameter_mm"]:
+        return False
+    if int(a.get("n_balls", 1) or 1) != int(b.get("n_balls", 1) or 1):
+        return False
+    aa, ab = a.get("amplitude_mm", np.nan), b.get("amplitude_mm", np.nan)
+    aa = default_amplitude_mm if aa is None or not np.isfinite(aa) else aa
+    ab = default_amplitude_mm if ab is None or not np.isfinite(ab) else ab
+    if aa is None or ab is None:
+        return True
+    return abs(float(aa) - float(ab)) <= TOLERANCES["amplitude_mm"]
+
+
+def match_conditions(conditions: pd.DataFrame, known: pd.DataFrame,
+                     default_amplitude_mm=None) -> dict:
+    """condition_id of ``conditions`` -> condition_id of the row of ``known`` with the same
+    physics, or None where ``known`` has none (never matched by id text).
+
+    Parameters
+    ----------
+    conditions, known : DataFrame - condition_id, frequency_hz, ball_diameter_mm
+        [, amplitude_mm, n_balls]
+    default_amplitude_mm : float or None - the stroke of a row that states none
+    """
+    a = physics_table(conditions)
+    b = physics_table(known)
+    brows = b.to_dict("records")
+    out = {}
+    for r in a.to_dict("records"):
+        hit = [k for k in brows if same_physics(r, k, default_amplitude_mm)]
+        out[r["condition_id"]] = hit[0]["condition_id"] if hit else None
+    return out
+
+
+def label(frequency_hz, ball_diameter_mm, amplitude_mm=None) -> str:
+    """Plain words: '19 mm ball at 26 Hz' (', 13.1 mm stroke' when stated)."""
+    s = "%g mm ball at %g Hz" % (float(ball_diameter_mm), float(frequency_hz))
+    if amplitude_mm is not None and np.isfinite(amplitude_mm):
+        s += ", %g mm stroke" % float(amplitude_mm)
+    return s
