@@ -509,14 +509,16 @@ def markdown_page(cmp: Comparison, dataset: Dataset, figures=()) -> str:
 
 
 def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = True) -> Path:
-    """Write comparison.csv, figures and comparison.md into ``out_dir`` atomically."""
+    """Write comparison.csv, figures and comparison.md into ``out_dir`` atomically; an
+    ``out_dir`` that is not ours to replace, or is / holds / lies in the dataset, is refused."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from analysis.plotting import compare_plots
 
     out_dir = Path(out_dir)
-    tmp = staging_dir(out_dir)  # makes the parent folder too
+    protected = [dataset.path] if dataset.path is not None else []
+    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
     try:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
         figs = []
@@ -543,7 +545,7 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
         (tmp / "comparison.md").write_text(markdown_page(cmp, dataset, figs))
         if out_dir.exists() and not overwrite:
             raise FileExistsError(out_dir)
-        publish_dir(tmp, out_dir)
+        publish_dir(tmp, out_dir, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -577,7 +579,9 @@ def main(argv=None):
                     help="pool the twin's replicate sd per observable over conditions")
     ap.add_argument("--z-report", type=float, default=2.0, help="|z| listed in the summary")
     args = ap.parse_args(argv)
+    from analysis.atomic_dir import OutputError, check_out_dir
     try:
+        check_out_dir(args.out, [args.dataset])
         ds = load_dataset(args.dataset)
         try:
             pred = pd.read_csv(args.predictions)
@@ -590,7 +594,7 @@ def main(argv=None):
         except PredictionError as exc:
             raise PredictionError("%s: %s" % (args.predictions, exc)) from None
         write_report(cmp, ds, args.out)
-    except (DatasetError, PredictionError) as exc:
+    except (DatasetError, PredictionError, OutputError) as exc:
         print("error: %s" % exc, file=sys.stderr)
         return 2
     print(cmp.summary(args.z_report))

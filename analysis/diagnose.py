@@ -935,6 +935,18 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
                            strength_se=after.stderr[name])
 
 
+def calibrate_base(predict, observations, base_params, *, model_se=None,
+                   fixed_effects: dict | None = None, base_step_frac: float = 1e-3,
+                   effect_se=None):
+    """(baseline, calibrated) FitResults: the model at the base parameters' starting values, and
+    with the base parameters fitted (effects off, ``fixed_effects`` held) - the calibration step
+    of :func:`diagnose` on its own, for a loop that re-anchors its model before it diagnoses."""
+    prob = _Problem(predict, observations, base_params, [], model_se, fixed_effects,
+                    base_step_frac, None, effect_se)
+    theta0 = {p.name: p.value for p in prob.base}
+    return prob.stage(theta0), prob.fit(theta0)
+
+
 def _load_model_factory(spec):
     """'package.module:function' -> the function."""
     import importlib
@@ -948,9 +960,11 @@ def _load_model_factory(spec):
 
 
 def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = None,
-                    dataset_name: str = "") -> "Path":
+                    dataset_name: str = "", protected=()) -> "Path":
     """Write diagnosis.csv, structure.csv, diagnosis.md, ranking.png [, staircase.csv,
-    before_after.csv, staircase.png] into ``out_dir`` atomically (temp folder, rename)."""
+    before_after.csv, staircase.png] into ``out_dir`` atomically (temp folder, rename); an
+    ``out_dir`` that is not ours to replace, or touches a ``protected`` input, is refused
+    (:func:`analysis.atomic_dir.check_out_dir`)."""
     import shutil
     from pathlib import Path
 
@@ -960,7 +974,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
     from analysis.plotting import compare_plots
 
     out_dir = Path(out_dir)
-    tmp = staging_dir(out_dir)  # makes the parent folder too
+    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
     try:
         diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
         diag.structure.to_csv(tmp / "structure.csv", index=False)
@@ -988,7 +1002,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
             md += ["## Adding %s" % added.effect, "", added.summary(), "",
                    "![staircase](staircase.png)", ""]
         (tmp / "diagnosis.md").write_text("\n".join(md))
-        publish_dir(tmp, out_dir)
+        publish_dir(tmp, out_dir, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -1016,7 +1030,9 @@ def main(argv=None):
     ap.add_argument("--add", help="effect to switch on afterwards ('best': the verdict's)")
     ap.add_argument("--alpha", type=float, default=0.01, help="family-wise level")
     args = ap.parse_args(argv)
+    from analysis.atomic_dir import check_out_dir
     try:
+        check_out_dir(args.out, [args.dataset])
         ds = load_dataset(args.dataset)
         problem = _load_model_factory(args.model)(ds)
         kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects",
@@ -1031,7 +1047,7 @@ def main(argv=None):
             kw.pop("noise_observables", None)
             added = add_effect(problem["predict"], obs, problem["base_params"],
                                problem["effects"], name, **kw)
-        write_diagnosis(diag, args.out, added, ds.name)
+        write_diagnosis(diag, args.out, added, ds.name, protected=[args.dataset])
     except (DatasetError, ValueError, KeyError, TypeError) as exc:
         print("error: %s" % exc, file=sys.stderr)
         return 2

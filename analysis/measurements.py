@@ -476,7 +476,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
     ds = validate(dataset)
     if path.exists() and not overwrite:
         raise FileExistsError("%s exists (pass overwrite=True to replace it)" % path)
-    tmp = staging_dir(path)  # makes the parent folder too
+    tmp = staging_dir(path, area="datasets")  # makes the parent folder too
     try:
         with open(tmp / "dataset.json", "w") as fh:
             json.dump(ds.meta, fh, indent=2)
@@ -495,7 +495,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
                 shutil.copy2(f, tmp / "videos" / ("%s%s" % (cid, Path(f).suffix)))
         if ds.yields is not None:
             ds.yields.to_csv(tmp / "yields.csv", index=False, na_rep="")
-        publish_dir(tmp, path)
+        publish_dir(tmp, path, area="datasets")
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

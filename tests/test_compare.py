@@ -7,6 +7,8 @@ matplotlib.use("Agg")
 
 import numpy as np
 import pandas as pd
+
+from analysis.atomic_dir import MARKER
 import pytest
 
 from analysis import compare as cmpmod
@@ -216,7 +218,7 @@ def test_cli_writes_report(tmp_path, capsys):
                       str(out), "--model-tracks", str(tmp_path / "mt")])
     assert rc == 0
     assert {p.name for p in out.iterdir()} == {"comparison.csv", "comparison.md", "heatmap.png",
-                                               "phase.png"}
+                                               "phase.png", MARKER}
     assert "speed 4.8 % high" in (out / "comparison.md").read_text()
     assert len(pd.read_csv(out / "comparison.csv")) == 16
     bad = paper_predictions()

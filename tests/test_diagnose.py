@@ -11,6 +11,8 @@ the diagnosis must carry in its uncertainties.
 """
 import numpy as np
 import pandas as pd
+
+from analysis.atomic_dir import MARKER
 import pytest
 
 from analysis.diagnose import (AddEffectResult, BaseParameter, Diagnosis, Effect, add_effect,
@@ -290,7 +292,7 @@ def test_cli_diagnose_and_add(tmp_path, capsys):
     assert "missing effect: ball_spin" in printed
     assert {p.name for p in out.iterdir()} == {
         "diagnosis.csv", "structure.csv", "diagnosis.md", "ranking.png", "staircase.csv",
-        "before_after.csv", "staircase.png"}
+        "before_after.csv", "staircase.png", MARKER}
     stair = pd.read_csv(out / "staircase.csv")
     assert stair["chi2_dof"].iat[2] <= 1.5 and stair["chi2_dof"].iat[1] >= 3 * stair["chi2_dof"].iat[2]
     rc = diagmod.main(["--dataset", str(ds_dir), "--model", "tests.test_diagnose:nope",
