@@ -12,6 +12,9 @@ MEASUREMENTS_DIR = DATA_DIR / "measurements"
 PAPER_TABLE3_DIR = MEASUREMENTS_DIR / "paper_table3"
 RESULTS_DIR = REPO_ROOT / "results"
 RUNS_DIR = RESULTS_DIR / "runs"
+#: run folders of the FAKE analytic twin (tests, demonstrations): never mixed with real runs,
+#: which share their run ids
+FAKE_RUNS_DIR = RESULTS_DIR / "runs_fake"
 DEMO_DIR = RESULTS_DIR / "demo"
 STUDIES_DIR = RESULTS_DIR / "studies"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"

@@ -1,0 +1,659 @@
+"""The whole loop on a researcher's own dataset: compare, diagnose, add (iterated), twin rerun.
+
+    python -m analysis.loop --dataset DIR --out DIR [--budget-runs N] [--dry-run]
+
+1. **Read** the dataset (``docs/dataset_format.md``; a bad file is one error naming file, row and
+   column). Conditions are matched by physics (frequency, ball, stroke where stated), never by
+   their ids; the velocity frame is honoured (a 'jar' dataset is compared with the twin's
+   jar-frame speed); tracks that carry the jar (``jar_x_m``) add the impact observables.
+2. **Build the model at the dataset's conditions** (:class:`analysis.open_model.OpenTwinModel`):
+   the plan (runs, how many are cached, estimated wall time) is printed first and checked
+   against ``--budget-runs``; twin runs are cached by run id, so a killed loop resumes.
+3. **Calibrate** the base parameters (restitution, stroke, the frictions where they move the
+   observables) on the dataset. Where the calibrated point lies beyond the model's measured
+   responses, **re-anchor** there (new anchor and responses) and calibrate again.
+4. **Diagnose and add, forward selection**: rank every candidate effect; when one is
+   significant, add it (its strength becomes a fitted parameter beside the base ones) and
+   diagnose again with the rest, until nothing more is significant (``--max-effects``).
+5. **Twin rerun**: the real twin at the final parameters with the effects found switched on
+   (fresh seeds), its chi2/dof beside the model's.
+6. **Write** one folder (atomically; only a folder this project wrote is ever replaced):
+
+   ========================  ==================================================================
+   ``report.md``             the verdict in words, the staircase, the parameters, figures
+   ``diagnosis.csv``         one row per candidate: effect, kind, rank, significant, strength,
+                             strength_se, delta_chi2, p_bonferroni, identifiable, step
+   ``staircase.csv``         stage, chi2, dof, chi2_dof (baseline, calibrated, + each effect,
+                             twin rerun)
+   ``steps.csv``             every diagnosis step's full ranking (column ``step``)
+   ``parameters.csv``        name, role (base / effect / held), value, se
+   ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z
+   ``model_runs.csv``        every twin run the model used (role, name, value, condition, seed,
+                             run_id, observables)
+   ``loop.json``             verdict, status, effects found, run counts, wall times
+   ``staircase.png``, ``ranking.png``
+   ========================  ==================================================================
+
+Example::
+
+    python -m analysis.loop --dataset data/measurements/paper_table3 \\
+        --out results/loop/paper_table3 --budget-runs 400
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
+from analysis.conditions import ConditionError, label, physics_table
+from analysis.diagnose import (BaseParameter, Effect, calibrate_base, diagnose,
+                               observations_from_dataset)
+from analysis.measurements import DatasetError, load_dataset
+from analysis.open_model import BudgetError, OpenTwinModel, RUN_WALL_S
+from analysis.twin_model import candidates, reference_parameters, yield_times_of
+
+#: candidate effects beyond this many are not added (a guard against chasing noise)
+MAX_EFFECTS = 3
+#: re-anchorings of the model at a calibrated point beyond its measured responses
+MAX_REANCHOR = 2
+#: two candidates whose -2 log L gains differ by less than this are "about as good"
+TIE_DELTA_CHI2 = 2.0
+
+
+@dataclass
+class LoopResult:
+    """What the loop found (see the module docstring for the files it writes)."""
+
+    status: str                      # 'nothing_missing', 'effects', 'unexplained'
+    verdict: str
+    effects: dict                    # name -> (strength, se), in the order added
+    staircase: pd.DataFrame
+    diagnosis: pd.DataFrame
+    steps: pd.DataFrame
+    parameters: pd.DataFrame
+    comparison: pd.DataFrame
+    model_runs: pd.DataFrame
+    info: dict = field(default_factory=dict)
+    diagnoses: list = field(default_factory=list, repr=False)
+
+
+# --------------------------------------------------------------------------- pieces
+
+def dataset_observations(dataset, flights=True):
+    """(observations, flight condition ids): the dataset's summary and yields, and the impact
+    observables of its tracks that carry the jar."""
+    obs = observations_from_dataset(dataset)
+    fl_ids = []
+    if flights and dataset.tracks:
+        from analysis.flights import dataset_flights
+        fl = dataset_flights(dataset)
+        if len(fl):
+            obs = pd.concat([obs, fl], ignore_index=True)
+            fl_ids = list(dict.fromkeys(fl["condition_id"]))
+    return obs, fl_ids
+
+
+def _with_run_sd(obs, model):
+    """A track is one realisation of a chaotic motion: one twin run's scatter is added to the
+    measured sd of its impact observables."""
+    if not model.flight_conditions:
+        return obs
+    run_sd = model.flight_run_sd()
+    key = list(zip(obs["condition_id"], obs["observable"]))
+    add = np.array([run_sd.get(k, 0.0) for k in key])
+    out = obs.copy()
+    out["sd"] = np.hypot(out["sd"].to_numpy(float), add)
+    return out
+
+
+class _Wrapped:
+    """The model with the effects already added as fitted parameters (forward selection):
+    ``predict(theta, eff)`` reads the added strengths from ``theta``."""
+
+    def __init__(self, model, added):
+        self.model = model
+        self.added = dict(added)
+
+    def predict(self, theta, effects=None):
+        th = {k: v for k, v in theta.items() if k not in self.added}
+        eff = dict(effects or {})
+        eff.update({k: theta.get(k, s) for k, s in self.added.items()})
+        return self.model.predict(th, eff)
+
+    def model_se(self):
+        se = self.model.model_se()
+        if not self.added:
+            return se
+        ex = self.model.resolution_se(self.added).reindex(se.index).fillna(0.0)
+        return np.sqrt(se ** 2 + ex ** 2)
+
+    def effect_se(self, effects):
+        on = dict(self.added)
+        on.update(effects or {})
+        full = self.model.resolution_se(on)
+        if not self.added:
+            return full
+        have = self.model.resolution_se(self.added)
+        return np.sqrt(np.maximum(full ** 2 - have ** 2, 0.0))
+
+
+def _base_params(model, theta, added):
+    """BaseParameters at the current values: the model's, then the added effects' strengths."""
+    out = []
+    for p in model.base_params():
+        out.append(BaseParameter(p.name, float(np.clip(theta.get(p.name, p.value), p.lower,
+                                                        p.upper)), p.lower, p.upper))
+    effs = {e.name: e for e in model.effects()}
+    for name, s in added.items():
+        e = effs[name]
+        out.append(BaseParameter(name, float(np.clip(s, e.lower, e.upper)), e.lower, e.upper))
+    return out
+
+
+def _stage_row(stage, fit, n_params):
+    return {"stage": stage, "chi2": fit.chi2, "dof": fit.dof, "chi2_dof": fit.chi2_dof,
+            "p_value": fit.p_value, "n_params": n_params}
+
+
+def rerun_table(dataset, obs, theta, added, *, replicates, seed0, sweep_kw, base_config,
+                flight_ids, budget_runs=None):
+    """The twin itself at the final parameters with the added DEM effects on (fresh seeds):
+    its prediction per observable and its standard error, as a model with no responses."""
+    cands = candidates()
+    dem = {}
+    for name, s in added.items():
+        if cands[name].kind == "dem" and s > 0:
+            dem.update(cands[name].spec(s))
+    kin = {k: s for k, s in added.items() if cands[k].kind == "kinetics"}
+    cfg = dict(base_config or {})
+    if dem:
+        cfg["effects"] = dem
+    ref = {k: float("%.4g" % theta[k]) for k in ("restitution", "static_friction",
+                                                 "rolling_friction", "amplitude_m")}
+    m = OpenTwinModel(dataset.conditions, yield_times_of(dataset), theta_ref=ref, base=(),
+                      velocity_frame=dataset.velocity_frame, flight_conditions=flight_ids,
+                      replicates=replicates, diff_replicates=1, effect_names=(),
+                      base_config=cfg, seed0=seed0, budget_runs=budget_runs, **sweep_kw)
+    m.fit(stage="base")
+    th = dict(theta)
+    pred = m.predict(th, kin)
+    se = m.model_se(th)
+    return pred, se, m
+
+
+# --------------------------------------------------------------------------- the loop
+
+def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
+                   noise_observables=None, log=print):
+    """Forward selection of effects on a model with ``predict``, ``model_se``,
+    ``resolution_se``, ``base_params`` and ``effects`` (an :class:`OpenTwinModel` or any model
+    of that shape): diagnose, add the best significant effect (its strength joins the fitted
+    parameters), diagnose the rest again, until nothing more is significant or ``max_effects``
+    are in.
+
+    Returns
+    -------
+    dict with 'added' (name -> strength, in order), 'diagnoses' (one Diagnosis per step),
+    'steps' (their tables with a ``step`` column), 'stairs' (staircase rows '+ <effect>'),
+    'last_fit' (the fit of the last addition, or None), 'theta' (base parameters there)
+    """
+    theta = dict(theta)
+    added, diags, step_rows, stairs, last_fit = {}, [], [], [], None
+    nb = len(model.base_params())
+    for step in range(1, max_effects + 2):
+        w = _Wrapped(model, added)
+        effs = [e for e in model.effects() if e.name not in added]
+        if not effs:
+            break
+        diag = diagnose(w.predict, obs, _base_params(model, theta, added), effs,
+                        model_se=w.model_se(), crn_correlation=0.0, conditions=conditions,
+                        alpha=alpha, noise_observables=noise_observables,
+                        effect_se=w.effect_se)
+        diags.append(diag)
+        t = diag.table.copy()
+        t.insert(0, "step", step)
+        step_rows.append(t)
+        log("step %d: %s" % (step, diag.verdict))
+        if diag.best is None or step > max_effects:
+            break
+        fit = diag.fits[diag.best]
+        added[diag.best] = float(fit.params[diag.best])
+        theta = {k: float(fit.params[k]) for k in theta}
+        for k in list(added):
+            if k in fit.params:
+                added[k] = float(fit.params[k])
+        last_fit = fit
+        stairs.append(_stage_row("+ " + diag.best, fit, nb + len(added)))
+    return {"added": added, "diagnoses": diags, "steps": step_rows, "stairs": stairs,
+            "last_fit": last_fit, "theta": theta}
+
+
+def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicates=2,
+             rerun=True, rerun_replicates=3, alpha=0.01, max_effects=MAX_EFFECTS,
+             max_reanchor=MAX_REANCHOR, budget_runs=None, base_config=None, runner=None,
+             workers=2, backend="local", runs_dir=None, progress=True, scheduler=None,
+             slurm=None, log=print, flights=True) -> LoopResult:
+    """Run the loop on a loaded :class:`analysis.measurements.Dataset` (see the module doc).
+
+    Parameters
+    ----------
+    dataset : Dataset
+    theta_ref : dict or None - first anchor (default: the calibration's posterior mean)
+    base : tuple of base-parameter names (default all four)
+    replicates, diff_replicates : anchor seeds, seeds per response level
+    rerun, rerun_replicates : the final twin rerun and its seeds per condition
+    alpha : family-wise level of each diagnosis step (Bonferroni over the candidates)
+    max_effects, max_reanchor : limits of the forward selection and of re-anchoring
+    budget_runs : most new twin runs the loop may start (None: no limit); checked before each
+        build, nothing runs beyond it
+    base_config : dict - run-config keys of every twin run (e.g. record_s, dt_s, a jar STL)
+    runner, workers, backend, runs_dir, progress, scheduler, slurm : the sweep's
+    log : callable(str) for progress lines
+    """
+    from analysis.open_model import DEFAULT_BASE
+    t_start = time.time()
+    phys = physics_table(dataset.conditions)
+    sweep_kw = dict(runner=runner, workers=workers, backend=backend, runs_dir=runs_dir,
+                    progress=progress, scheduler=scheduler, slurm=slurm)
+    obs0, fl_ids = dataset_observations(dataset, flights)
+    theta_ref = dict(theta_ref or reference_parameters())
+    used = {"new": 0}
+
+    def budget_left():
+        return None if budget_runs is None else budget_runs - used["new"]
+
+    def build(ref, stage):
+        m = OpenTwinModel(dataset.conditions, yield_times_of(dataset), theta_ref=ref,
+                          base=tuple(base or DEFAULT_BASE),
+                          velocity_frame=dataset.velocity_frame, flight_conditions=fl_ids,
+                          replicates=replicates, diff_replicates=diff_replicates,
+                          base_config=base_config, budget_runs=budget_left(), **sweep_kw)
+        ps = m.plan_summary(stage)
+        log("model at %s (%s): %d runs, %d cached, %d new, about %.0f min on %d worker(s)"
+            % (_fmt_theta(ref), "anchor + base responses" if stage == "base" else
+               "+ effect responses", ps["runs"], ps["cached"], ps["new"], ps["est_wall_s"] / 60,
+               workers))
+        m.fit(stage)
+        used["new"] += ps["new"]
+        return m
+
+    # --- calibrate, re-anchoring where the calibrated point leaves the measured responses
+    model = build(theta_ref, "base")
+    reanchors = []
+    for it in range(max_reanchor + 1):
+        obs = _with_run_sd(obs0, model)
+        baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
+                                       model_se=model.model_se())
+        out = model.outside(cal.params)
+        if not out or it == max_reanchor:
+            break
+        new_ref = dict(model.theta_ref)
+        for p in model.base_names:
+            new_ref[p] = float("%.4g" % cal.params[p])
+        log("calibrated point beyond the measured responses (%s): re-anchoring"
+            % ", ".join("%s %+.1f steps" % kv for kv in out.items()))
+        reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out})
+        model = build(new_ref, "base")
+    if baseline is not None and reanchors:
+        # the staircase's baseline is the model at the first anchor, not the re-anchored one
+        pass
+    model = build(model.theta_ref, "all")
+    obs = _with_run_sd(obs0, model)
+    baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
+                                   model_se=model.model_se())
+    theta = {p.name: cal.params[p.name] for p in model.base_params()}
+    nb = len(model.base_params())
+    stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
+
+    # --- forward selection
+    noise = {"v_mean_m_s", "f_col_hz"}
+    if fl_ids:
+        from analysis.flights import FLIGHT_OBSERVABLES
+        noise |= set(FLIGHT_OBSERVABLES)
+    fs = forward_select(model, obs, theta, conditions=dataset.conditions, alpha=alpha,
+                        max_effects=max_effects, noise_observables=noise, log=log)
+    added, diags, step_rows, last_fit, theta = (fs["added"], fs["diagnoses"], fs["steps"],
+                                                fs["last_fit"], fs["theta"])
+    stair += fs["stairs"]
+
+    # --- final joint fit (all added strengths with the base): strengths and their se
+    final = last_fit if last_fit is not None else cal
+    if added:
+        w = _Wrapped(model, added)
+        _, final = calibrate_base(w.predict, obs, _base_params(model, theta, added),
+                                  model_se=w.model_se())
+        if final.objective > last_fit.objective:
+            final = last_fit
+        for k in added:
+            added[k] = float(final.params[k])
+        theta = {k: float(final.params[k]) for k in theta}
+    eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
+
+    # --- twin rerun at the final parameters
+    rr = None
+    if rerun:
+        log("twin rerun at the final parameters (%d seeds per condition)" % rerun_replicates)
+        th_full = dict(model.theta_ref)
+        th_full.update(theta)
+        pred, se, rmodel = rerun_table(dataset, obs0, th_full, added,
+                                       replicates=rerun_replicates, seed0=100,
+                                       sweep_kw=sweep_kw, base_config=base_config,
+                                       flight_ids=fl_ids, budget_runs=budget_left())
+        key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+        obs_r = _with_run_sd(obs0, rmodel)
+        p = pred.reindex(key).to_numpy(float)
+        s = np.hypot(obs_r["sd"].to_numpy(float), se.reindex(key).to_numpy(float))
+        z = (p - obs_r["value"].to_numpy(float)) / s
+        chi2 = float(np.nansum(z ** 2))
+        dof = int(np.isfinite(z).sum()) - nb - len(added)
+        rr = {"prediction": pd.Series(p, index=key), "z": pd.Series(z, index=key),
+              "chi2": chi2, "dof": dof}
+        stair.append({"stage": "twin rerun", "chi2": chi2, "dof": dof,
+                      "chi2_dof": chi2 / max(dof, 1),
+                      "p_value": float(stats.chi2.sf(chi2, max(dof, 1))),
+                      "n_params": nb + len(added)})
+    staircase = pd.DataFrame(stair)
+
+    # --- tables
+    steps = pd.concat(step_rows, ignore_index=True) if step_rows else pd.DataFrame()
+    diagnosis = _diagnosis_table(steps, added, eff_se)
+    params = []
+    for p in model.base_params():
+        params.append({"name": p.name, "role": "base", "value": final.params.get(p.name),
+                       "se": final.stderr.get(p.name)})
+    for k, reason in model.held.items():
+        params.append({"name": k, "role": "held", "value": model.theta_ref[k], "se": np.nan,
+                       "note": reason})
+    for k, s in added.items():
+        params.append({"name": k, "role": "effect", "value": s, "se": eff_se[k],
+                       "note": candidates()[k].strength_label})
+    parameters = pd.DataFrame(params)
+    comp = obs.copy()
+    key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+    comp["calibrated"] = cal.prediction.reindex(key).to_numpy(float)
+    comp["z_calibrated"] = cal.residuals.reindex(key).to_numpy(float)
+    comp["final"] = final.prediction.reindex(key).to_numpy(float)
+    comp["z_final"] = final.residuals.reindex(key).to_numpy(float)
+    if rr is not None:
+        comp["twin_rerun"] = rr["prediction"].to_numpy(float)
+        comp["z_twin_rerun"] = rr["z"].to_numpy(float)
+    status, verdict = _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model,
+                                     alpha)
+    info = {"dataset": dataset.name, "velocity_frame": dataset.velocity_frame,
+            "conditions": [dict(r, label=label(r["frequency_hz"], r["ball_diameter_mm"],
+                                              r["amplitude_mm"]))
+                           for r in phys.drop(columns=["physics_key"]).to_dict("records")],
+            "anchor": model.theta_ref, "reanchors": reanchors, "held": model.held,
+            "new_runs": used["new"], "wall_s": time.time() - t_start,
+            "flight_conditions": fl_ids, "alpha": alpha}
+    return LoopResult(status=status, verdict=verdict,
+                      effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
+                      diagnosis=diagnosis, steps=steps, parameters=parameters,
+                      comparison=comp, model_runs=model.runs_, info=info, diagnoses=diags)
+
+
+def _fmt_theta(t):
+    return ", ".join("%s %.4g" % (k, v) for k, v in t.items())
+
+
+def _diagnosis_table(steps, added, eff_se):
+    """One row per candidate: added effects first (in the order added, with the final joint
+    strength), then the rest as ranked in the last step."""
+    if not len(steps):
+        return pd.DataFrame(columns=["effect", "kind", "rank", "significant", "strength",
+                                     "strength_se", "delta_chi2", "p_bonferroni",
+                                     "identifiable", "step"])
+    rows = []
+    for i, name in enumerate(added):
+        r = steps[(steps["effect"] == name) & steps["significant"]].iloc[-1]
+        rows.append({"effect": name, "kind": r["kind"], "significant": True,
+                     "strength": added[name], "strength_se": eff_se[name],
+                     "delta_chi2": r["delta_chi2"], "p_bonferroni": r["p_bonferroni"],
+                     "identifiable": bool(r["identifiable"]), "step": int(r["step"])})
+    last = steps[steps["step"] == steps["step"].max()]
+    for _, r in last.iterrows():
+        if r["effect"] in added:
+            continue
+        rows.append({"effect": r["effect"], "kind": r["kind"], "significant": False,
+                     "strength": r["strength"], "strength_se": r["strength_se"],
+                     "delta_chi2": r["delta_chi2"], "p_bonferroni": r["p_bonferroni"],
+                     "identifiable": bool(r["identifiable"]), "step": int(r["step"])})
+    t = pd.DataFrame(rows)
+    t.insert(2, "rank", np.arange(1, len(t) + 1))
+    return t
+
+
+def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha):
+    head = "calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof)
+    parts = []
+    if added:
+        found = []
+        for k, s in added.items():
+            c = candidates()[k]
+            found.append("%s (%s = %.3g +- %.2g)" % (k, c.strength_label, s, eff_se[k]))
+        status = "effects"
+        parts.append("missing effect%s: %s; chi2/dof %.2f -> %.2f"
+                     % ("s" if len(added) > 1 else "", "; ".join(found), cal.chi2_dof,
+                        final.chi2_dof))
+        # ties: a candidate as good as the one added at its step
+        for d in diags:
+            if d.best is None:
+                continue
+            t = d.table
+            b = t[t["effect"] == d.best].iloc[0]
+            ties = t[t["significant"] & (t["effect"] != d.best)
+                     & (b["delta_chi2"] - t["delta_chi2"] < TIE_DELTA_CHI2)]
+            for _, o in ties.iterrows():
+                parts.append("%s explains the data about as well as %s (chi2 gain %.1f "
+                             "against %.1f): the data cannot tell them apart"
+                             % (o["effect"], d.best, o["delta_chi2"], b["delta_chi2"]))
+    else:
+        status = "nothing_missing" if cal.p_value >= alpha else "unexplained"
+        parts.append("nothing missing: no candidate effect is significant; %s" % head
+                     if status == "nothing_missing" else
+                     "no candidate effect explains the misfit (%s, p = %.2g)"
+                     % (head, cal.p_value))
+    if added and final.p_value < alpha:
+        status = "effects_partial"
+        parts.append("what stays unexplained: chi2/dof %.2f (p = %.2g) after the effects found"
+                     % (final.chi2_dof, final.p_value))
+    if diags and diags[-1].structure is not None and len(diags[-1].structure):
+        st = diags[-1].structure
+        w = list(st.loc[st["significant"], "words"])
+        if w and (status != "nothing_missing"):
+            parts.append("residual structure: " + "; ".join(w))
+    if model.held:
+        parts.append("held at the anchor: " + ", ".join(model.held))
+    if rr is not None:
+        parts.append("the real twin rerun at the final parameters: chi2/dof %.2f"
+                     % (rr["chi2"] / max(rr["dof"], 1)))
+    return status, ". ".join(parts) + "."
+
+
+# --------------------------------------------------------------------------- output
+
+def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
+    """Write the loop's folder atomically (see the module docstring for the files)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from analysis.plotting import compare_plots
+
+    out_dir = Path(out_dir)
+    tmp = staging_dir(out_dir, protected)
+    try:
+        res.diagnosis.to_csv(tmp / "diagnosis.csv", index=False)
+        res.staircase.to_csv(tmp / "staircase.csv", index=False)
+        res.steps.to_csv(tmp / "steps.csv", index=False)
+        res.parameters.to_csv(tmp / "parameters.csv", index=False)
+        res.comparison.to_csv(tmp / "comparison.csv", index=False)
+        res.model_runs.to_csv(tmp / "model_runs.csv", index=False)
+        info = dict(res.info, status=res.status, verdict=res.verdict,
+                    effects={k: {"strength": s, "se": se} for k, (s, se) in res.effects.items()})
+        (tmp / "loop.json").write_text(json.dumps(info, indent=1, default=_json))
+        fig, ax = plt.subplots(figsize=(5.5, 3.5))
+        compare_plots.plot_chi2_staircase(res.staircase, ax=ax)
+        fig.tight_layout()
+        fig.savefig(tmp / "staircase.png", dpi=120)
+        plt.close(fig)
+        if res.diagnoses:
+            fig, ax = plt.subplots(figsize=(6, 3.5))
+            compare_plots.plot_effect_ranking(res.diagnoses[0], ax=ax)
+            fig.tight_layout()
+            fig.savefig(tmp / "ranking.png", dpi=120)
+            plt.close(fig)
+        (tmp / "report.md").write_text(_report(res, dataset))
+        publish_dir(tmp, out_dir, protected)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir
+
+
+def _json(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return str(o)
+
+
+def _md_table(df, cols, fmt="%.4g"):
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in df.iterrows():
+        lines.append("| " + " | ".join((fmt % r[c]) if isinstance(r[c], (float, np.floating))
+                                        else str(r[c]) for c in cols) + " |")
+    return lines
+
+
+def _report(res, dataset):
+    i = res.info
+    synth = " (SYNTHETIC)" if dataset.meta.get("synthetic") else ""
+    md = ["# The loop on %s%s" % (dataset.name, synth), "",
+          "**Verdict:** %s" % res.verdict, "",
+          "Velocity frame: %s. Conditions (matched by physics):" % i["velocity_frame"], ""]
+    md += ["- %s: %s" % (c["condition_id"], c["label"]) for c in i["conditions"]]
+    md += ["", "## Staircase (chi2/dof)", ""]
+    md += _md_table(res.staircase, ["stage", "chi2", "dof", "chi2_dof", "p_value"])
+    md += ["", "![staircase](staircase.png)", "", "## Parameters", ""]
+    p = res.parameters.copy()
+    if "note" not in p.columns:
+        p["note"] = ""
+    p["note"] = p["note"].fillna("")
+    md += _md_table(p, ["name", "role", "value", "se", "note"])
+    md += ["", "## Candidates", ""]
+    md += _md_table(res.diagnosis, ["rank", "effect", "kind", "significant", "strength",
+                                    "strength_se", "delta_chi2", "p_bonferroni", "step"])
+    md += ["", "![ranking](ranking.png)", "",
+           "Model: %d twin runs at the dataset's conditions (%d new this time), anchor %s%s; "
+           "wall time %.0f s." % (len(res.model_runs), i["new_runs"], _fmt_theta(i["anchor"]),
+                                  ("; re-anchored %d time(s)" % len(i["reanchors"]))
+                                  if i["reanchors"] else "", i["wall_s"]), ""]
+    return "\n".join(md)
+
+
+# --------------------------------------------------------------------------- CLI
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(
+        description="The loop on a measurement dataset: build the twin model at its "
+        "conditions, calibrate, diagnose which effect is missing, add it (repeatedly), rerun "
+        "the twin, write one report folder.",
+        epilog="example: python -m analysis.loop --dataset data/measurements/paper_table3 "
+        "--out results/loop/paper_table3",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--dataset", required=True, help="dataset folder (docs/dataset_format.md)")
+    ap.add_argument("--out", required=True,
+                    help="output folder; replaced only when an earlier loop wrote it")
+    ap.add_argument("--budget-runs", type=int, default=None,
+                    help="most new twin runs to start (default: no limit); the loop stops "
+                    "with exit 3 before a build that needs more")
+    ap.add_argument("--dry-run", action="store_true",
+                    help="print the first build's plan (runs, cached, estimated wall time) "
+                    "and exit; nothing is run or written")
+    ap.add_argument("--replicates", type=int, default=3, help="anchor seeds per condition")
+    ap.add_argument("--diff-replicates", type=int, default=2,
+                    help="seeds per base-parameter / effect level")
+    ap.add_argument("--no-rerun", action="store_true", help="skip the final twin rerun")
+    ap.add_argument("--rerun-replicates", type=int, default=3,
+                    help="seeds per condition of the final twin rerun")
+    ap.add_argument("--alpha", type=float, default=0.01,
+                    help="family-wise significance level of each diagnosis step")
+    ap.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
+                    help="most effects added (forward selection)")
+    ap.add_argument("--record-s", type=float, default=None,
+                    help="recorded time per twin run [s] (default the run config's 0.5 s)")
+    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
+                    help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")
+    ap.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
+    ap.add_argument("--fake", action="store_true",
+                    help="use the FAKE analytic twin (tests and demonstrations only)")
+    a = ap.parse_args(argv)
+    try:
+        check_out_dir(a.out, [a.dataset])
+        ds = load_dataset(a.dataset)
+        physics_table(ds.conditions)
+        if a.replicates < 1 or a.diff_replicates < 1 or a.rerun_replicates < 1:
+            raise ValueError("--replicates, --diff-replicates and --rerun-replicates must be "
+                             ">= 1")
+        if not 0.0 < a.alpha < 1.0:
+            raise ValueError("--alpha must lie in (0, 1), got %g" % a.alpha)
+        if a.record_s is not None and not (a.record_s > 0 and math.isfinite(a.record_s)):
+            raise ValueError("--record-s must be > 0 s, got %g" % a.record_s)
+        runner = None
+        runs_dir = None
+        if a.fake:
+            from analysis.config import FAKE_RUNS_DIR
+            from analysis.fake_twin import run_fake_twin
+            runner, runs_dir = run_fake_twin, FAKE_RUNS_DIR
+        base_config = {"record_s": a.record_s} if a.record_s else None
+        if a.dry_run:
+            m = OpenTwinModel(ds.conditions, yield_times_of(ds),
+                              velocity_frame=ds.velocity_frame, replicates=a.replicates,
+                              diff_replicates=a.diff_replicates, base_config=base_config,
+                              workers=a.workers, runs_dir=runs_dir)
+            for stage in ("base", "all"):
+                ps = m.plan_summary(stage)
+                print("%s: %d runs, %d cached, %d new, about %.0f min on %d worker(s) "
+                      "(%.0f s per run)" % ("anchor + base responses" if stage == "base"
+                                            else "with the effect responses", ps["runs"],
+                                            ps["cached"], ps["new"], ps["est_wall_s"] / 60,
+                                            a.workers, RUN_WALL_S))
+            return 0
+        res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
+                       rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
+                       alpha=a.alpha, max_effects=a.max_effects, budget_runs=a.budget_runs,
+                       base_config=base_config, runner=runner, workers=a.workers,
+                       backend=a.backend, scheduler=a.scheduler, runs_dir=runs_dir,
+                       log=lambda s: print(s, file=sys.stderr))
+        write_loop(res, a.out, ds, protected=[a.dataset])
+    except BudgetError as exc:
+        print("analysis.loop: %s" % exc, file=sys.stderr)
+        return 3
+    except (DatasetError, ConditionError, OutputError, ValueError, RuntimeError) as exc:
+        print("analysis.loop: error: %s" % exc, file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("analysis.loop: interrupted; finished twin runs stay cached - run the same "
+              "command again to resume", file=sys.stderr)
+        return 130
+    print(res.verdict)
+    print("staircase: " + ", ".join("%s %.2f" % (r.stage, r.chi2_dof)
+                                    for r in res.staircase.itertuples()))
+    print("wrote %s" % a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,524 @@
+"""The twin as diagnose's model at ANY dataset's conditions, built from runs made there.
+
+:mod:`analysis.twin_model` reads a library of runs at the paper's 8 conditions. A researcher's
+dataset is at other frequencies, other balls, perhaps another stroke: this model is built from
+twin runs at the dataset's own conditions (matched by physics, :mod:`analysis.conditions`), all
+cached by run id, so a second build costs nothing and a killed build resumes:
+
+* **anchor**: the twin at the anchor parameters ``theta_ref`` (default the calibration's
+  posterior mean), every effect off, ``replicates`` seeds per condition (default 3);
+* **base parameters** (restitution, stroke, static and rolling friction): the twin at
+  ``theta_ref`` +- ``BASE_STEPS`` (restitution and stroke both sides, the frictions one side)
+  with the first ``diff_replicates`` of the anchor's seeds; the response is the quadratic through
+  the three points (the line through two), extended linearly beyond them. A friction whose
+  response cannot be told from the twin's noise (a chi-square test over every condition and
+  observable) is held at ``theta_ref`` (said in :attr:`held`): fitting noise is not calibrating. Where a dataset states the stroke of a
+  condition (``amplitude_mm``), that condition runs at it and the stroke is not fitted there;
+* **DEM effects**: each candidate of the catalog at ``EFFECT_LEVELS`` of its diagnose range,
+  ``diff_replicates`` seeds, piecewise linear in its strength coordinate
+  (:func:`analysis.twin_model.interp_levels`), with its interpolation error
+  (:func:`analysis.twin_model.interp_sd`) and the level means' own noise in ``effect_se``;
+* **observables**: v_mean in the dataset's velocity frame (``v_mean_jar_m_s`` of the recording
+  for a 'jar' dataset), f_col, the impact observables of :mod:`analysis.flights` where the
+  dataset has jar tracks, yields through the powder line or a kinetics effect (exact) - from the
+  lab-frame speed, whatever the frame of the measured speed.
+
+The build is staged so that no run is wasted: :meth:`OpenTwinModel.fit` with ``stage='base'``
+runs the anchor and the base responses only (enough to calibrate), ``stage='all'`` adds the
+effect responses. :meth:`plan` lists every run with its cached state, for a cost estimate before
+anything starts.
+
+The model's noise (``model_se``) is the anchor mean's standard error, the replicate sd pooled
+over every group of seeds at the condition (floored as in the library model); diagnose is told
+``crn_correlation = 0`` (chaos decorrelates two runs of 0.5 s even from one start).
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.conditions import physics_table
+from analysis.twin_model import (BASE_BOUNDS, CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS,
+                                 V_REL_SD_FLOOR, TwinModel, candidates, curvatures, interp_levels,
+                                 interp_sd, reference_parameters)
+
+#: base parameters the open model can calibrate, and the step of their response runs
+BASE_STEPS = {"restitution": 0.06, "amplitude_m": 6e-4, "static_friction": 0.15,
+              "rolling_friction": 0.15}
+#: parameters whose response is measured on both sides of the anchor (curved responses)
+TWO_SIDED = ("restitution", "amplitude_m")
+DEFAULT_BASE = ("restitution", "amplitude_m", "static_friction", "rolling_friction")
+#: DEM effect levels, as fractions of each candidate's diagnose range
+EFFECT_LEVELS = (0.5, 1.0)
+#: a one-sided base parameter (a friction) is fitted when its response's chi-square against the
+#: twin's noise exceeds its dof by this many sds
+MIN_BASE_RESPONSE_Z = 3.0
+#: wall time of one default twin run on one core [s] (the planner's estimate; measured 21 s)
+RUN_WALL_S = 21.0
+
+
+class BudgetError(RuntimeError):
+    """The build needs more twin runs than the budget allows (the message says how many)."""
+
+
+def condition_configs(phys, theta, seed, base_config=None, effects=None):
+    """Run config of one condition: ``base_config``, the base parameters ``theta``, the
+    condition's frequency, ball and (when stated) stroke, the seed and the effects."""
+    cfg = dict(base_config or {})
+    cfg.update({k: float(v) for k, v in theta.items()})
+    cfg.update(frequency_hz=float(phys["frequency_hz"]),
+               ball_diameter_m=float(phys["ball_diameter_mm"]) * 1e-3, seed=int(seed))
+    a = phys.get("amplitude_mm", np.nan)
+    if a is not None and np.isfinite(a):
+        cfg["amplitude_m"] = float(a) * 1e-3
+    if effects:
+        cfg["effects"] = effects
+    return cfg
+
+
+class OpenTwinModel(TwinModel):
+    """predict(theta, effects) for diagnose from twin runs at the dataset's own conditions.
+
+    Follows the estimator contract: ``__init__`` stores, :meth:`fit` runs (cached) and assembles;
+    fitted state ends in ``_``. The prediction, model_se and yield logic are those of
+    :class:`analysis.twin_model.TwinModel` (the same observables and keys); what differs is where
+    the numbers come from.
+
+    Parameters
+    ----------
+    conditions : DataFrame - the dataset's conditions (condition_id, frequency_hz,
+        ball_diameter_mm [, amplitude_mm, n_balls])
+    yield_times_min : dict condition_id -> yield times [min]
+    theta_ref : dict - anchor parameters (default: the calibration's posterior mean)
+    base : names of the base parameters to calibrate (subset of :data:`DEFAULT_BASE`)
+    velocity_frame : {'lab', 'jar'} - the frame of the measured v_mean
+    flight_conditions : condition ids with a jar track (impact observables predicted there)
+    replicates : anchor seeds per condition
+    diff_replicates : seeds per base / effect level (the anchor's first seeds: common starts)
+    effect_names : DEM candidates to build (default: all of the catalog)
+    base_config : dict - further run-config keys of every run (e.g. record_s, a jar STL)
+    runner, workers, backend, runs_dir, progress, scheduler, slurm : passed to
+        :func:`analysis.sweep.run_sweep`
+    budget_runs : int or None - refuse a build that needs more new runs than this
+    seed0 : int - first seed (seeds seed0 .. seed0 + replicates - 1)
+    """
+
+    def __init__(self, conditions, yield_times_min=None, theta_ref=None, base=DEFAULT_BASE,
+                 velocity_frame="lab", flight_conditions=(), replicates=3, diff_replicates=2,
+                 effect_names=None, base_config=None, runner=None, workers=2, backend="local",
+                 runs_dir=None, progress=True, scheduler=None, slurm=None, budget_runs=None,
+                 seed0=0):
+        if velocity_frame not in ("lab", "jar"):
+            raise ValueError("velocity_frame must be 'lab' or 'jar', got %r" % (velocity_frame,))
+        unknown = set(base) - set(BASE_STEPS)
+        if unknown:
+            raise ValueError("unknown base parameter(s) %s (known: %s)"
+                             % (sorted(unknown), ", ".join(BASE_STEPS)))
+        if int(replicates) < 1 or int(diff_replicates) < 1:
+            raise ValueError("replicates and diff_replicates must be >= 1")
+        self.phys = physics_table(conditions)
+        self.conditions = conditions.reset_index(drop=True)
+        self.yield_times_min = {k: list(v) for k, v in (yield_times_min or {}).items()}
+        self.theta_ref = dict(theta_ref or reference_parameters())
+        self.base_requested = tuple(base)
+        self.velocity_frame = velocity_frame
+        cids = list(self.conditions["condition_id"])
+        unknown = set(flight_conditions or ()) - set(cids)
+        if unknown:
+            raise ValueError("flight conditions %s are not among the conditions" % sorted(unknown))
+        self.flight_conditions = [c for c in cids if c in set(flight_conditions or ())]
+        self.replicates = int(replicates)
+        self.diff_replicates = min(int(diff_replicates), int(replicates))
+        dem = candidates("dem")
+        names = list(effect_names) if effect_names is not None else list(dem)
+        bad = [n for n in names if n not in dem]
+        if bad:
+            raise ValueError("unknown DEM candidate(s) %s" % bad)
+        self.effect_names = tuple(names)
+        self.base_config = dict(base_config or {})
+        self.sweep_kw = dict(runner=runner, workers=workers, backend=backend, runs_dir=runs_dir,
+                             progress=progress, scheduler=scheduler, slurm=slurm)
+        self.budget_runs = budget_runs
+        self.seed0 = int(seed0)
+        self.patterns = {}
+
+    # ------------------------------------------------------------------ the plan
+    def _stated_amplitude(self, i):
+        a = self.phys["amplitude_mm"].iloc[i]
+        return bool(np.isfinite(a))
+
+    def plan(self, stage="all") -> pd.DataFrame:
+        """Every run the model needs: role ('anchor', 'base', 'effect'), name, value (parameter
+        value or effect strength), condition_id, seed, config; one row per run."""
+        rows = []
+        ref = self.theta_ref
+        for i, ph in enumerate(self.phys.to_dict("records")):
+            cid = ph["condition_id"]
+            for k in range(self.replicates):
+                rows.append(("anchor", "", 0.0, cid, self.seed0 + k,
+                             condition_configs(ph, ref, self.seed0 + k,
+                                                              self.base_config)))
+            for p in self.base_requested:
+                if p == "amplitude_m" and self._stated_amplitude(i):
+                    continue
+                vals = [ref[p] + BASE_STEPS[p]]
+                if p in TWO_SIDED:
+                    vals = [ref[p] - BASE_STEPS[p]] + vals
+                for v in vals:
+                    v = float("%.4g" % v)
+                    for k in range(self.diff_replicates):
+                        rows.append(("base", p, v, cid, self.seed0 + k, condition_configs(
+                            ph, dict(ref, **{p: v}), self.seed0 + k, self.base_config)))
+            if stage == "all":
+                for name in self.effect_names:
+                    c = candidates("dem")[name]
+                    for fr in EFFECT_LEVELS:
+                        s = fr * c.s_max
+                        for k in range(self.diff_replicates):
+                            rows.append(("effect", name, s, cid, self.seed0 + k,
+                                         condition_configs(ph, ref, self.seed0 + k,
+                                                           self.base_config, c.spec(s))))
+        return pd.DataFrame(rows, columns=["role", "name", "value", "condition_id", "seed",
+                                           "config"])
+
+    def plan_summary(self, stage="all", plan=None) -> dict:
+        """{'runs': n, 'cached': n, 'new': n, 'est_wall_s': s} of :meth:`plan`, the wall time
+        estimated for the sweep's workers at :data:`RUN_WALL_S` per run."""
+        from analysis.config import RUNS_DIR
+        from analysis.sweep import prepare_configs
+        plan = self.plan(stage) if plan is None else plan
+        _, ids = prepare_configs(list(plan["config"]))
+        root = Path(self.sweep_kw["runs_dir"] or RUNS_DIR)
+        uniq = dict.fromkeys(ids)
+        cached = sum((root / r / "meta.json").exists() for r in uniq)
+        new = len(uniq) - cached
+        w = max(int(self.sweep_kw["workers"] or 1), 1)
+        return {"runs": len(uniq), "cached": cached, "new": new,
+                "est_wall_s": math.ceil(new / w) * RUN_WALL_S}
+
+    # ------------------------------------------------------------------ build
+    def fit(self, stage="all"):
+        """Run what :meth:`plan` lists (cached runs are read, not rerun) and assemble the model.
+
+        Raises
+        ------
+        BudgetError
+            more new runs than ``budget_runs`` (nothing is run)
+        RuntimeError
+            a twin run failed (its id and error in the message; finished runs stay cached)
+        """
+        from analysis.sweep import run_sweep
+        plan = self.plan(stage)
+        ps = self.plan_summary(stage, plan)
+        if self.budget_runs is not None and ps["new"] > self.budget_runs:
+            raise BudgetError("the model needs %d new twin runs (%d cached of %d), the budget "
+                              "is %d: raise --budget-runs or cut conditions / replicates"
+                              % (ps["new"], ps["cached"], ps["runs"], self.budget_runs))
+        t0 = time.time()
+        res = run_sweep(list(plan["config"]), **self.sweep_kw)
+        if not res.ok:
+            raise RuntimeError("%d twin run(s) failed:\n%s" % (
+                res.n_failed, res.failed()[["run_id", "error"]].to_string()))
+        t = res.table.reset_index(drop=True)
+        runs = plan.drop(columns=["config"]).copy()
+        for c in ("run_id", "v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "motion_mode"):
+            runs[c] = t[c].to_numpy() if c in t.columns else np.nan
+        if self.flight_conditions:
+            from analysis.flights import FLIGHT_OBSERVABLES
+            from analysis.twin_model import run_flights
+            at = runs["condition_id"].isin(self.flight_conditions)
+            fl = run_flights(list(runs.loc[at, "run_id"]), self.sweep_kw["runs_dir"])
+            for k in FLIGHT_OBSERVABLES:
+                runs[k] = np.nan
+                runs.loc[at, k] = fl[k].to_numpy(float)
+        self.runs_ = runs
+        self.build_s_ = time.time() - t0
+        self.stage_ = stage
+        self._assemble_model(runs)
+        return self
+
+    # ------------------------------------------------------------------ assembly
+    def _assemble_model(self, runs):
+        from analysis.flights import FLIGHT_OBSERVABLES
+        cids = list(self.conditions["condition_id"])
+        vcol = "v_mean_m_s" if self.velocity_frame == "lab" else "v_mean_jar_m_s"
+        if runs[vcol].isna().all():
+            raise ValueError("the twin runs carry no %s: the jar-frame speed needs recordings "
+                             "with it" % vcol)
+        self.dem_cols = ["v_mean_m_s", "f_col_hz", "v_mean_jar_m_s"]
+        self.flight_obs = tuple(FLIGHT_OBSERVABLES)
+        cols = self.dem_cols + (list(self.flight_obs) if self.flight_conditions else [])
+        key = ["role", "name", "value", "condition_id"]
+        g = runs.groupby(key, sort=False)[cols]
+        means = g.mean()
+        # replicate sd per condition, pooled over every group of >= 2 seeds there
+        var = runs.groupby(key, sort=False)[cols].var()
+        pooled = var.groupby(level="condition_id").mean().reindex(cids)
+        anc = runs[runs["role"] == "anchor"].groupby("condition_id")[cols].mean().reindex(cids)
+        if anc[["v_mean_m_s", "f_col_hz"]].isna().any().any():
+            raise RuntimeError("the anchor has no usable run at some condition")
+        self.anchor_ = anc[cols].to_numpy(float)
+        self.anchor = self.anchor_[:, :2]              # lab v, f_col (TwinModel's contract)
+        self.n_rep = float(self.replicates)
+        v_rel = np.sqrt(pooled[vcol].to_numpy(float)) / anc[vcol].to_numpy(float)
+        self.v_rel_sd_cond = np.fmax(np.nan_to_num(v_rel), V_REL_SD_FLOOR)
+        self.v_rel_sd = float(np.sqrt(np.mean(self.v_rel_sd_cond ** 2)))
+        self.f_col_sd_hz = np.fmax(np.nan_to_num(np.sqrt(pooled["f_col_hz"].to_numpy(float))),
+                                   F_COL_SD_FLOOR_HZ)
+        sd = np.sqrt(np.nan_to_num(pooled[cols].to_numpy(float)))
+        floors = np.array([F_COL_SD_FLOOR_HZ if c == "f_col_hz" else
+                           FLIGHT_SD_FLOORS.get(c, 0.0) for c in cols])
+        self.col_sd_ = np.fmax(sd, floors)
+        self.col_sd_[:, 0] = self.v_rel_sd_cond * anc["v_mean_m_s"].to_numpy(float)
+        self.col_sd_[:, 2] = self.v_rel_sd_cond * anc["v_mean_jar_m_s"].to_numpy(float)
+        self.cols_ = cols
+        if self.flight_conditions:
+            self.fl_sd_cond = self.col_sd_[:, 3:]
+        # same-seed differences from the anchor (common starts)
+        anc_by_seed = runs[runs["role"] == "anchor"].set_index(["condition_id", "seed"])[cols]
+
+        def diff_means(role, name):
+            d = runs[(runs["role"] == role) & (runs["name"] == name)]
+            out = {}
+            for (val, cid), grp in d.groupby(["value", "condition_id"], sort=True):
+                base = anc_by_seed.loc[[(cid, s) for s in grp["seed"]]].to_numpy(float)
+                out[(float(val), cid)] = (np.nanmean(grp[cols].to_numpy(float) - base, axis=0),
+                                          len(grp))
+            return out
+
+        cid_has_flights = [c in self.flight_conditions for c in cids]
+        # base responses: per parameter, per condition points (x - ref, change)
+        self.base_resp_ = {}
+        self.held_ = {}
+        for p in self.base_requested:
+            dm = diff_means("base", p)
+            pts = []
+            for i, cid in enumerate(cids):
+                xs = sorted(v for (v, c) in dm if c == cid)
+                if not xs:
+                    pts.append(None)           # stroke stated at this condition: not fitted
+                    continue
+                x = np.array([0.0] + [v - self.theta_ref[p] for v in xs])
+                ds = np.vstack([np.zeros(len(cols))] + [dm[(v, cid)][0] for v in xs])
+                o = np.argsort(x)
+                pts.append((x[o], ds[o]))
+            # identifiable? a chi-square test of the measured changes against their noise
+            # (difference of two means of diff_replicates runs), over every condition and
+            # observable, z = (T - n) / sqrt(2 n); restitution and stroke are always fitted
+            T, n = 0.0, 0
+            for i, pt in enumerate(pts):
+                if pt is None:
+                    continue
+                noise = self.col_sd_[i] * math.sqrt(2.0 / self.diff_replicates)
+                used = [2 if self.velocity_frame == "jar" else 0, 1] + list(
+                    range(3, len(cols)) if cid_has_flights[i] else [])
+                r = pt[1][pt[0] != 0][:, used] / noise[used]
+                r = r[np.isfinite(r)]
+                T += float(np.sum(r ** 2))
+                n += r.size
+            z = (T - n) / math.sqrt(2.0 * n) if n else 0.0
+            if all(pt is None for pt in pts):
+                self.held_[p] = "stated by the dataset at every condition"
+            elif z < MIN_BASE_RESPONSE_Z and p not in TWO_SIDED:
+                self.held_[p] = ("its response is within the twin's noise (chi-square z = "
+                                 "%.1f < %g)" % (z, MIN_BASE_RESPONSE_Z))
+            else:
+                self.base_resp_[p] = pts
+        self.base_names = tuple(p for p in self.base_requested if p in self.base_resp_)
+        # effect responses, in the strength coordinate, through (0, 0)
+        self.sig_all_ = {}
+        self.sig_noise_ = {}
+        for name in self.effect_names:
+            dm = diff_means("effect", name)
+            if not dm:
+                continue
+            sig, nse = [], []
+            for i, cid in enumerate(cids):
+                xs = sorted(v for (v, c) in dm if c == cid)
+                sig.append((np.array([0.0] + xs),
+                            np.vstack([np.zeros(len(cols))] + [dm[(v, cid)][0] for v in xs])))
+                nse.append(np.array([0.0] + [math.sqrt(2.0 / dm[(v, cid)][1]) for v in xs]))
+            self.sig_all_[name] = sig
+            self.sig_noise_[name] = nse
+        self.sig_curv_ = {k: [curvatures(xs, ds) for xs, ds in v]
+                          for k, v in self.sig_all_.items()}
+        # TwinModel's attributes that predict / model_se read
+        self.sig = {k: None for k in self.sig_all_}
+        self.mass_kg = (7800.0 * math.pi / 6.0
+                        * (self.conditions["ball_diameter_mm"].to_numpy(float) * 1e-3) ** 3)
+        keys = []
+        for cid in cids:
+            keys += [(cid, "v_mean_m_s"), (cid, "f_col_hz")]
+            keys += [(cid, "yield_pct@%gmin" % t) for t in self.yield_times_min.get(cid, [])]
+            if cid in self.flight_conditions:
+                keys += [(cid, k) for k in self.flight_obs]
+        self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
+        self._kin = candidates("kinetics")
+        self._gp_cache = {}
+
+    @property
+    def held(self) -> dict:
+        """Base parameters held at the anchor, with the reason."""
+        return dict(self.held_)
+
+    # ------------------------------------------------------------------ evaluation
+    def _base_change(self, theta):
+        y = np.zeros_like(self.anchor_)
+        for p, pts in self.base_resp_.items():
+            dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
+            if dx == 0.0:
+                continue
+            for i, pt in enumerate(pts):
+                if pt is None:
+                    continue
+                xs, ds = pt
+                y[i] += _poly_response(xs, ds, dx)
+        return y
+
+    def outputs(self, theta, effects=None):
+        """(n_cond, n_cols) all model columns (lab v, f_col, frame v, impact observables)."""
+        y = self.anchor_ + self._base_change(theta)
+        for name, s in (effects or {}).items():
+            if name in self.sig_all_ and s:
+                y = y + interp_levels(self.sig_all_[name], float(s))
+        return y
+
+    def dem_outputs(self, theta, effects=None):
+        return self.outputs(theta, effects)[:, :2]
+
+    def flight_outputs(self, theta, effects=None):
+        return self.outputs(theta, effects)[:, 3:]
+
+    def predict(self, theta, effects=None):
+        out = super().predict(theta, effects)
+        if self.velocity_frame == "jar":
+            v = self.outputs(theta, effects)[:, 2]
+            for i, cid in enumerate(self.conditions["condition_id"]):
+                out[(cid, "v_mean_m_s")] = v[i]
+        return out
+
+    def model_se(self, theta=None):
+        se = super().model_se(theta)
+        if self.velocity_frame == "jar":
+            for i, cid in enumerate(self.conditions["condition_id"]):
+                se[(cid, "v_mean_m_s")] = self.col_sd_[i, 2] / math.sqrt(self.n_rep)
+        return se
+
+    def resolution_se(self, effects):
+        """Interpolation error between the effect levels plus the level means' own noise (a
+        level is a mean of ``diff_replicates`` runs minus the anchor's same seeds), summed in
+        quadrature over the effects on; propagated to the yields as the model_se is."""
+        n = len(self.conditions)
+        var = np.zeros((n, len(self.cols_)))
+        for name, st in (effects or {}).items():
+            if name not in self.sig_all_ or not st:
+                continue
+            st = float(st)
+            var += interp_sd(self.sig_all_[name], self.sig_curv_[name], st) ** 2
+            w = _level_weights(self.sig_all_[name], st)
+            for i in range(n):
+                nv = float(np.sum((w[i] * self.sig_noise_[name][i]) ** 2))
+                var[i] += nv * self.col_sd_[i] ** 2
+        sd = np.sqrt(var)
+        from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ as slope
+        out = []
+        vi = 2 if self.velocity_frame == "jar" else 0
+        for i, cid in enumerate(self.conditions["condition_id"]):
+            v, f = self.anchor_[i, :2]
+            out += [sd[i, vi], sd[i, 1]]
+            m = self.mass_kg[i]
+            for t in self.yield_times_min.get(cid, []):
+                out.append(abs(slope) * t * 60.0 / 1000.0
+                           * math.hypot(m * v * f * sd[i, 0], 0.5 * m * v * v * sd[i, 1]))
+            if cid in self.flight_conditions:
+                out += list(sd[i, 3:])
+        return pd.Series(out, index=self.keys)
+
+    def base_params(self):
+        """diagnose BaseParameters: the fitted DEM base parameters (those not held) and, with
+        yields, the powder line's slope and intercept."""
+        return super().base_params()
+
+    def effects(self):
+        """diagnose Effects: the built DEM candidates, and the kinetics ones with yields."""
+        from analysis.diagnose import Effect
+        out = []
+        for c in CANDIDATES:
+            if c.kind == "kinetics" and not self.has_yields:
+                continue
+            if c.kind == "dem" and c.name not in self.sig_all_:
+                continue
+            out.append(Effect(c.name, 0.0, c.s_max, null=0.0, kind=c.kind,
+                              description="strength = %s" % c.strength_label))
+        return out
+
+    def outside(self, theta) -> dict:
+        """{parameter: distance in steps} of the fitted base parameters beyond the measured
+        response points (where the model extrapolates: re-anchor there)."""
+        out = {}
+        for p, pts in self.base_resp_.items():
+            dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
+            xs = [pt[0] for pt in pts if pt is not None]
+            lo = min(x[0] for x in xs)
+            hi = max(x[-1] for x in xs)
+            if dx < lo - 1e-12 or dx > hi + 1e-12:
+                out[p] = dx / BASE_STEPS[p]
+        return out
+
+    def flight_run_sd(self):
+        rows, vals = [], []
+        for i, cid in enumerate(self.conditions["condition_id"]):
+            if cid in self.flight_conditions:
+                rows += [(cid, k) for k in self.flight_obs]
+                vals += list(self.col_sd_[i, 3:])
+        return pd.Series(vals, index=pd.MultiIndex.from_tuples(
+            rows, names=["condition_id", "observable"]), dtype=float)
+
+
+def _poly_response(xs, ds, dx):
+    """Change at offset ``dx`` from points (xs ascending, ds rows): the quadratic through three
+    points (the line through two) inside [xs[0], xs[-1]], extended linearly with its end slope."""
+    if len(xs) == 2:
+        return ds[1] * (dx / xs[1]) if xs[1] != 0 else ds[0] * (dx / xs[0])
+    x0, x1, x2 = xs
+    lo, hi = x0, x2
+
+    def quad(x):
+        l0 = (x - x1) * (x - x2) / ((x0 - x1) * (x0 - x2))
+        l1 = (x - x0) * (x - x2) / ((x1 - x0) * (x1 - x2))
+        l2 = (x - x0) * (x - x1) / ((x2 - x0) * (x2 - x1))
+        return l0 * ds[0] + l1 * ds[1] + l2 * ds[2]
+
+    def slope(x):
+        d0 = (2 * x - x1 - x2) / ((x0 - x1) * (x0 - x2))
+        d1 = (2 * x - x0 - x2) / ((x1 - x0) * (x1 - x2))
+        d2 = (2 * x - x0 - x1) / ((x2 - x0) * (x2 - x1))
+        return d0 * ds[0] + d1 * ds[1] + d2 * ds[2]
+
+    if dx < lo:
+        return quad(lo) + slope(lo) * (dx - lo)
+    if dx > hi:
+        return quad(hi) + slope(hi) * (dx - hi)
+    return quad(dx)
+
+
+def _level_weights(sig, s):
+    """(n_cond, k) weights of each level in :func:`interp_levels` at strength ``s``."""
+    out = []
+    for xs, _ in sig:
+        w = np.zeros(len(xs))
+        if len(xs) == 1:
+            w[0] = 1.0
+        elif s >= xs[-1]:
+            t = (s - xs[-2]) / (xs[-1] - xs[-2])
+            w[-2], w[-1] = 1.0 - t, t
+        else:
+            k = int(np.clip(np.searchsorted(xs, s) - 1, 0, len(xs) - 2))
+            t = (s - xs[k]) / (xs[k + 1] - xs[k])
+            w[k], w[k + 1] = 1.0 - t, t
+        out.append(w)
+    return out

@@ -1,0 +1,280 @@
+"""The open-world loop: conditions by physics, the model built at a dataset's own conditions,
+forward selection, the loop's command and its output files (FAKE twin: no YADE)."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis import loop
+from analysis.conditions import ConditionError, match_conditions, physics_key, physics_table
+from analysis.diagnose import BaseParameter, Effect
+from analysis.fake_twin import run_fake_twin
+from analysis.measurements import load_dataset
+from analysis.open_model import BudgetError, OpenTwinModel
+
+THETA = {"restitution": 0.35, "static_friction": 0.47, "rolling_friction": 0.25,
+         "amplitude_m": 0.0127}
+NEW_CONDITIONS = pd.DataFrame({"condition_id": ["a", "b", "c", "d"],
+                               "frequency_hz": [26.0, 28.0, 21.0, 31.0],
+                               "ball_diameter_mm": [19.0, 17.5, 15.0, 21.5]})
+WIDE_CONDITIONS = pd.DataFrame({"condition_id": ["w%d" % i for i in range(8)],
+                                "frequency_hz": [20.0, 21.5, 23.0, 24.5, 26.0, 27.5, 29.0, 32.0],
+                                "ball_diameter_mm": [15.0, 21.0, 16.0, 20.0, 17.0, 19.0, 18.0,
+                                                     22.0]})
+
+
+# --------------------------------------------------------------------------- physics, not names
+
+def test_conditions_match_by_physics_not_ids():
+    paper = pd.DataFrame({"condition_id": ["f22.5_d20.6", "f30_d17.5"],
+                          "frequency_hz": [22.5, 30.0], "ball_diameter_mm": [20.6, 17.5]})
+    # other ids, same physics (and CSV round-off); an id that lies about its physics
+    mine = pd.DataFrame({"condition_id": ["slow_big", "f30_d17.5", "fast_small"],
+                         "frequency_hz": [22.500001, 26.0, 30.0],
+                         "ball_diameter_mm": [20.6, 19.0, 17.5]})
+    m = match_conditions(mine, paper)
+    assert m == {"slow_big": "f22.5_d20.6", "f30_d17.5": None, "fast_small": "f30_d17.5"}
+    # a stated stroke must match too (an unstated one takes the default)
+    mine2 = mine.assign(amplitude_mm=[12.7, np.nan, 13.5])
+    assert match_conditions(mine2, paper, default_amplitude_mm=12.7) == {
+        "slow_big": "f22.5_d20.6", "f30_d17.5": None, "fast_small": None}
+    assert physics_key(26, 19) == "f26_d19"
+    assert physics_key(22.5, 20.6, 13.1) == "f22.5_d20.6_a13.1"
+
+
+def test_conditions_refused_with_a_clear_error():
+    two = NEW_CONDITIONS.assign(n_balls=[1, 2, 1, 1])
+    with pytest.raises(ConditionError, match="'b' has n_balls = 2"):
+        physics_table(two)
+    dup = NEW_CONDITIONS.assign(frequency_hz=[26.0, 26.0, 21.0, 31.0],
+                                ball_diameter_mm=[19.0, 19.0, 15.0, 21.5])
+    with pytest.raises(ConditionError, match="same physics"):
+        physics_table(dup)
+
+
+def test_library_model_matches_by_physics(tmp_path):
+    """The paper-condition library model pairs a dataset's conditions with its runs by physics:
+    lying ids are not given the paper conditions' predictions, renamed ones are."""
+    from analysis import twin_model
+    summ = pd.DataFrame({"label": ["none", "none"], "strength": [0.0, 0.0],
+                         "condition_id": ["f30_d17.5", "f22.5_d20.6"], "n": [2, 2],
+                         "v_mean_m_s": [2.6, 1.9], "v_sd_m_s": [0.01, 0.01],
+                         "f_col_hz": [60.0, 45.0], "f_col_sd_hz": [0.5, 0.5]})
+    meta = {"theta_ref": THETA, "conditions": [
+        {"condition_id": "f30_d17.5", "frequency_hz": 30.0, "ball_diameter_mm": 17.5},
+        {"condition_id": "f22.5_d20.6", "frequency_hz": 22.5, "ball_diameter_mm": 20.6}]}
+    renamed = pd.DataFrame({"condition_id": ["x", "y"], "frequency_hz": [22.5, 30.0],
+                            "ball_diameter_mm": [20.6, 17.5]})
+    got = twin_model.library_at(renamed, (summ, meta)).set_index("condition_id")
+    assert got.loc["x", "v_mean_m_s"] == 1.9 and got.loc["y", "v_mean_m_s"] == 2.6
+    lying = pd.DataFrame({"condition_id": ["f30_d17.5"], "frequency_hz": [26.0],
+                          "ball_diameter_mm": [19.0]})
+    with pytest.raises(ValueError, match=r"f30_d17.5 \(19 mm ball at 26 Hz\).*analysis.loop"):
+        twin_model.library_at(lying, (summ, meta))
+
+
+# --------------------------------------------------------------------------- the built model
+
+@pytest.fixture
+def fake_runs(tmp_path):
+    return tmp_path / "runs"
+
+
+def _model(conds, runs_dir, **kw):
+    kw.setdefault("effect_names", ("viscoelastic_restitution", "jar_compliance"))
+    return OpenTwinModel(conds, {}, theta_ref=THETA, runner=run_fake_twin, workers=1,
+                         runs_dir=runs_dir, progress=False, **kw)
+
+
+def test_open_model_builds_at_new_conditions_and_resumes(fake_runs):
+    m = _model(NEW_CONDITIONS, fake_runs)
+    ps = m.plan_summary()
+    # 4 conditions x (3 anchor + 2 x 2 x 2 two-sided + 2 x 2 one-sided + 2 effects x 2 x 2)
+    assert ps == {"runs": 4 * (3 + 8 + 4 + 8), "cached": 0, "new": 92,
+                  "est_wall_s": 92 * 21.0}
+    with pytest.raises(BudgetError, match="92 new twin runs"):
+        _model(NEW_CONDITIONS, fake_runs, budget_runs=10).fit()
+    assert not fake_runs.exists() or not any(fake_runs.iterdir())   # nothing ran
+    m.fit()
+    assert _model(NEW_CONDITIONS, fake_runs).plan_summary()["new"] == 0   # cached: resumes
+    # the restitution moves the speed as the fake twin's formula does: the model's change
+    # between theta and theta + one step, averaged over the conditions, against the formula's
+    # (6 seeds: the fake's 1.5 % noise leaves a 0.43 % se on that mean)
+    from analysis.fake_twin import toy_observables
+    m6 = _model(NEW_CONDITIONS, fake_runs, replicates=6, diff_replicates=6,
+                effect_names=()).fit("base")
+    f = NEW_CONDITIONS["frequency_hz"].to_numpy()
+    d = NEW_CONDITIONS["ball_diameter_mm"].to_numpy() * 1e-3
+    hi = dict(THETA, restitution=0.41)
+    ids = list(NEW_CONDITIONS["condition_id"])
+    v0 = np.array([m6.predict(THETA, {})[(c, "v_mean_m_s")] for c in ids])
+    v1 = np.array([m6.predict(hi, {})[(c, "v_mean_m_s")] for c in ids])
+    t0, _ = toy_observables(THETA["restitution"], THETA["static_friction"],
+                            THETA["rolling_friction"], THETA["amplitude_m"], f, d)
+    t1, _ = toy_observables(0.41, THETA["static_friction"], THETA["rolling_friction"],
+                            THETA["amplitude_m"], f, d)
+    assert np.mean(v1 / v0 - 1) == pytest.approx(np.mean(t1 / t0 - 1), abs=3 * 0.0043)
+    assert np.all(np.abs(v0 / t0 - 1) < 4 * 0.015 / np.sqrt(6))
+    p0 = m.predict(THETA, {})
+    # jar compliance speeds the ball up in the fake twin: the built response says so
+    up = m.predict(THETA, {"jar_compliance": 1.5})
+    assert all(up[(c, "v_mean_m_s")] > p0[(c, "v_mean_m_s")] for c in NEW_CONDITIONS["condition_id"])
+    # the frictions barely move the fake's speed at these conditions: not fitted, said so
+    assert set(m.base_names) <= {"restitution", "amplitude_m", "rolling_friction",
+                                 "static_friction"}
+    for k, why in m.held.items():
+        assert "noise" in why
+    # the interpolation + level noise is zero at null and positive between levels
+    assert float(m.resolution_se({}).abs().max()) == 0.0
+    assert float(m.resolution_se({"viscoelastic_restitution": 0.45}).max()) > 0.0
+
+
+def test_stated_stroke_is_run_and_not_fitted(fake_runs):
+    c = NEW_CONDITIONS.iloc[:2].assign(amplitude_mm=[13.1, np.nan])
+    m = _model(c, fake_runs, effect_names=())
+    plan = m.plan("base")
+    cfg_a = plan[(plan["condition_id"] == "a")]["config"]
+    assert all(abs(x["amplitude_m"] - 0.0131) < 1e-12 for x in cfg_a)
+    assert not ((plan["condition_id"] == "a") & (plan["name"] == "amplitude_m")).any()
+    assert ((plan["condition_id"] == "b") & (plan["name"] == "amplitude_m")).any()
+
+
+def test_jar_frame_is_honoured(fake_runs):
+    """A 'jar' dataset is predicted from the recordings' jar-frame speed (the fake twin writes
+    the same number in both frames: changing it in the runs shows which column is read)."""
+    m = _model(NEW_CONDITIONS.iloc[:1], fake_runs, effect_names=(), velocity_frame="jar")
+    m.fit("base")
+    runs = m.runs_.copy()
+    runs["v_mean_jar_m_s"] = runs["v_mean_m_s"] * 0.5
+    m._assemble_model(runs)
+    lab = _model(NEW_CONDITIONS.iloc[:1], fake_runs, effect_names=()).fit("base")
+    vj = m.predict(THETA, {})[("a", "v_mean_m_s")]
+    vl = lab.predict(THETA, {})[("a", "v_mean_m_s")]
+    assert vj == pytest.approx(0.5 * vl, rel=1e-9)
+    with pytest.raises(ValueError, match="velocity_frame"):
+        _model(NEW_CONDITIONS, fake_runs, velocity_frame="camera")
+
+
+# --------------------------------------------------------------------------- forward selection
+
+class ToyModel:
+    """A deterministic model with two base parameters and three effects of known shape."""
+
+    def __init__(self, n=10, se=0.01):
+        self.f = np.linspace(20, 32, n)
+        self.d = np.tile([15.0, 21.0], n // 2)
+        self.ids = ["c%d" % i for i in range(n)]
+        self.keys = pd.MultiIndex.from_tuples(
+            [(c, o) for c in self.ids for o in ("v_mean_m_s", "f_col_hz")],
+            names=["condition_id", "observable"])
+        self.se = se
+
+    def predict(self, theta, effects):
+        a, b = theta["a"], theta["b"]
+        e1, e2, e3 = (effects.get(k, 0.0) for k in ("E1", "E2", "decoy"))
+        x = (self.f - 26) / 6
+        v = a + b * x + e1 * x ** 2 + e2 * (self.d - 18) / 3 + 1e-6 * e3
+        fc = 2 * self.f + 0.5 * e2 * x
+        return pd.Series(np.column_stack([v, fc]).ravel(), index=self.keys)
+
+    def model_se(self, theta=None):
+        return pd.Series(self.se, index=self.keys)
+
+    def resolution_se(self, effects):
+        return pd.Series(0.0, index=self.keys)
+
+    def base_params(self):
+        return [BaseParameter("a", 2.0, 1.0, 3.0), BaseParameter("b", 0.3, -1.0, 1.0)]
+
+    def effects(self):
+        return [Effect("E1", 0.0, 1.0), Effect("E2", 0.0, 1.0), Effect("decoy", 0.0, 1.0)]
+
+
+def _toy_obs(model, truth, sd, seed):
+    rng = np.random.default_rng(seed)
+    mu = model.predict({"a": 2.2, "b": 0.4}, truth).to_numpy()
+    return pd.DataFrame({"condition_id": model.keys.get_level_values(0),
+                         "observable": model.keys.get_level_values(1),
+                         "value": mu + sd * rng.standard_normal(len(mu)), "sd": sd})
+
+
+def test_forward_selection_finds_both_effects_and_stops():
+    m = ToyModel()
+    truth = {"E1": 0.3, "E2": 0.2}
+    hits, cover = 0, 0
+    for seed in range(5):
+        obs = _toy_obs(m, truth, 0.01, seed)
+        fs = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None)
+        if set(fs["added"]) == {"E1", "E2"}:
+            hits += 1
+        last = fs["last_fit"]
+        for k, s in truth.items():
+            if k in last.params:
+                cover += abs(last.params[k] - s) <= 1.96 * last.stderr[k]
+        assert "decoy" not in fs["added"]
+        assert len(fs["diagnoses"]) == len(fs["added"]) + 1    # one more step finds nothing
+    assert hits == 5
+    assert cover >= 9
+    # no effect hidden: nothing added
+    fs = loop.forward_select(m, _toy_obs(m, {}, 0.01, 7), {"a": 2.0, "b": 0.3},
+                             log=lambda s: None)
+    assert fs["added"] == {}
+
+
+# --------------------------------------------------------------------------- the command
+
+@pytest.fixture
+def fake_dataset(tmp_path, monkeypatch):
+    """A hidden-effect dataset from the FAKE twin at conditions the paper never ran."""
+    from analysis.hidden import make_hidden_dataset
+    monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", tmp_path / "fake_runs")
+    ds, truth = make_hidden_dataset(
+        "fk", {"jar_compliance": {"f_n_hz": 85.0}}, conditions=WIDE_CONDITIONS, replicates=1,
+        seed=3, base_config={"restitution": 0.32, "static_friction": 0.55,
+                             "rolling_friction": 0.35, "amplitude_m": 0.0131},
+        runner=run_fake_twin, runs_dir=tmp_path / "fake_runs", out_dir=tmp_path / "ds",
+        truth_dir=tmp_path / "truth", twin_v_rel_sd=0.015, twin_f_col_sd_hz=0.5,
+        progress=False, v_rel_sd=0.005)
+    return ds
+
+
+def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
+                    "--workers", "1", "--rerun-replicates", "2"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "staircase: baseline" in text and "wrote" in text
+    d = pd.read_csv(out / "diagnosis.csv")
+    for c in ("effect", "rank", "significant", "strength", "strength_se"):
+        assert c in d.columns
+    assert list(d["rank"]) == list(range(1, len(d) + 1))
+    # the FAKE twin's effects are smooth enough in (f, d) for the recalibration to absorb
+    # them (detection is tested on the toy above and on the real twin in the suite); the
+    # decoy is never significant
+    assert not d.loc[d["effect"] == "air_drag", "significant"].any()
+    st = pd.read_csv(out / "staircase.csv")
+    assert list(st["stage"][:2]) == ["baseline", "calibrated"]
+    assert st["stage"].iloc[-1] == "twin rerun"
+    assert st["chi2_dof"].iloc[1] <= st["chi2_dof"].iloc[0] + 1e-9   # calibration helps
+    for f in ("steps.csv", "parameters.csv", "comparison.csv", "model_runs.csv",
+              "staircase.png", "ranking.png"):
+        assert (out / f).is_file(), f
+    info = json.loads((out / "loop.json").read_text())
+    assert info["conditions"][0]["label"] == "15 mm ball at 20 Hz"
+    assert (out / "report.md").read_text().startswith("# The loop on fk (SYNTHETIC)")
+    # a second run is all cached and replaces only its own folder
+    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
+                    "--workers", "1", "--rerun-replicates", "2"])
+    assert rc == 0
+
+
+def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
+    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--dry-run"])
+    assert rc == 0 and not (tmp_path / "o").exists()
+    assert "runs" in capsys.readouterr().out
+    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o2"), "--fake",
+                    "--budget-runs", "0", "--workers", "1"])
+    assert rc == 3 and not (tmp_path / "o2").exists()
+    assert "budget" in capsys.readouterr().err
