@@ -15,6 +15,8 @@ RUNS_DIR = RESULTS_DIR / "runs"
 #: run folders of the FAKE analytic twin (tests, demonstrations): never mixed with real runs,
 #: which share their run ids
 FAKE_RUNS_DIR = RESULTS_DIR / "runs_fake"
+#: tracks of datasets' films, cached by the film's content hash (analysis.videos)
+TRACK_CACHE_DIR = RESULTS_DIR / "track_cache"
 DEMO_DIR = RESULTS_DIR / "demo"
 STUDIES_DIR = RESULTS_DIR / "studies"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"

@@ -31,6 +31,8 @@
    ``model_runs.csv``        every twin run the model used (role, name, value, condition, seed,
                              run_id, observables)
    ``loop.json``             verdict, status, effects found, run counts, wall times
+   ``tracking.csv``,         (a dataset with films) each film's tracking quality: frames,
+   ``tracks/<id>.csv``       lost frames, re-acquisitions, scale; the tracks made from them
    ``staircase.png``, ``ranking.png``
    ========================  ==================================================================
 
@@ -85,6 +87,7 @@ class LoopResult:
     model_runs: pd.DataFrame
     info: dict = field(default_factory=dict)
     diagnoses: list = field(default_factory=list, repr=False)
+    tracks: dict = field(default_factory=dict, repr=False)   # tracks made from films
 
 
 # --------------------------------------------------------------------------- pieces
@@ -242,7 +245,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
              rerun=True, rerun_replicates=3, alpha=0.01, max_effects=MAX_EFFECTS,
              max_reanchor=MAX_REANCHOR, budget_runs=None, base_config=None, runner=None,
              workers=2, backend="local", runs_dir=None, progress=True, scheduler=None,
-             slurm=None, log=print, flights=True) -> LoopResult:
+             slurm=None, log=print, flights=True, track_cache=None) -> LoopResult:
     """Run the loop on a loaded :class:`analysis.measurements.Dataset` (see the module doc).
 
     Parameters
@@ -259,12 +262,26 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     base_config : dict - run-config keys of every twin run (e.g. record_s, dt_s, a jar STL)
     runner, workers, backend, runs_dir, progress, scheduler, slurm : the sweep's
     log : callable(str) for progress lines
+    track_cache : folder where the tracks of the dataset's films are cached (default
+        results/track_cache)
     """
     from analysis.open_model import DEFAULT_BASE
     t_start = time.time()
     phys = physics_table(dataset.conditions)
     sweep_kw = dict(runner=runner, workers=workers, backend=backend, runs_dir=runs_dir,
                     progress=progress, scheduler=scheduler, slurm=slurm)
+    tracking = None
+    if dataset.video_files and any(c not in dataset.tracks for c in dataset.video_files):
+        import dataclasses
+        from analysis.config import TRACK_CACHE_DIR
+        from analysis.videos import track_dataset_videos
+        tracks, tracking = track_dataset_videos(dataset, track_cache or TRACK_CACHE_DIR,
+                                                progress=progress)
+        log("tracked %d film(s): %s" % (len(tracking), "; ".join(
+            "%s %d frames, %d lost, %d re-acquired, %.4f mm/px (%s)%s"
+            % (q.condition_id, q.n_frames, q.n_lost, q.n_reacquired, q.m_per_px * 1e3,
+               q.scale_source, " [cached]" if q.cached else "") for q in tracking.itertuples())))
+        dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
     obs0, fl_ids = dataset_observations(dataset, flights)
     theta_ref = dict(theta_ref or reference_parameters())
     used = {"new": 0}
@@ -395,11 +412,14 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                            for r in phys.drop(columns=["physics_key"]).to_dict("records")],
             "anchor": model.theta_ref, "reanchors": reanchors, "held": model.held,
             "new_runs": used["new"], "wall_s": time.time() - t_start,
-            "flight_conditions": fl_ids, "alpha": alpha}
+            "flight_conditions": fl_ids, "alpha": alpha,
+            "tracking": None if tracking is None else tracking.to_dict("records")}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
                       diagnosis=diagnosis, steps=steps, parameters=parameters,
-                      comparison=comp, model_runs=model.runs_, info=info, diagnoses=diags)
+                      comparison=comp, model_runs=model.runs_, info=info, diagnoses=diags,
+                      tracks={c: dataset.tracks[c] for c in (tracking["condition_id"]
+                                                            if tracking is not None else [])})
 
 
 def _fmt_theta(t):
@@ -498,6 +518,11 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
         res.parameters.to_csv(tmp / "parameters.csv", index=False)
         res.comparison.to_csv(tmp / "comparison.csv", index=False)
         res.model_runs.to_csv(tmp / "model_runs.csv", index=False)
+        if res.tracks:
+            (tmp / "tracks").mkdir()
+            for cid, tr in res.tracks.items():
+                tr.to_csv(tmp / "tracks" / ("%s.csv" % cid), index=False)
+            pd.DataFrame(res.info["tracking"]).to_csv(tmp / "tracking.csv", index=False)
         info = dict(res.info, status=res.status, verdict=res.verdict,
                     effects={k: {"strength": s, "se": se} for k, (s, se) in res.effects.items()})
         (tmp / "loop.json").write_text(json.dumps(info, indent=1, default=_json))
@@ -543,6 +568,11 @@ def _report(res, dataset):
           "**Verdict:** %s" % res.verdict, "",
           "Velocity frame: %s. Conditions (matched by physics):" % i["velocity_frame"], ""]
     md += ["- %s: %s" % (c["condition_id"], c["label"]) for c in i["conditions"]]
+    if i.get("tracking"):
+        md += ["", "## Films tracked (ball and jar; tracks in tracks/)", ""]
+        md += _md_table(pd.DataFrame(i["tracking"]), ["condition_id", "video", "n_frames",
+                                                      "n_lost", "n_reacquired", "m_per_px",
+                                                      "scale_source", "jar_n_lost"])
     md += ["", "## Staircase (chi2/dof)", ""]
     md += _md_table(res.staircase, ["stage", "chi2", "dof", "chi2_dof", "p_value"])
     md += ["", "![staircase](staircase.png)", "", "## Parameters", ""]

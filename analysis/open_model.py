@@ -65,6 +65,37 @@ class BudgetError(RuntimeError):
     """The build needs more twin runs than the budget allows (the message says how many)."""
 
 
+def known_run_table(results_dir=None) -> pd.DataFrame:
+    """Results of real twin runs committed in the repository, indexed by run id: the signature
+    library's runs and every ``model_runs.csv`` under results/ (the loop writes one per
+    dataset). The FAKE twin's runs (motion_mode 'fake') are left out."""
+    from analysis.config import RESULTS_DIR
+    root = Path(results_dir or RESULTS_DIR)
+    files = [root / "signatures" / "signature_runs.csv"]
+    skip = (root / "runs", root / "runs_fake")
+    files += sorted(p for p in root.glob("**/model_runs.csv")
+                    if not any(q in p.parents for q in skip))
+    parts = []
+    for f in files:
+        if f.is_file():
+            try:
+                d = pd.read_csv(f)
+            except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError):
+                continue
+            if "run_id" in d.columns and "v_mean_m_s" in d.columns:
+                parts.append(d)
+    if not parts:
+        return pd.DataFrame()
+    d = pd.concat(parts, ignore_index=True)
+    if "motion_mode" in d.columns:
+        d = d[d["motion_mode"].astype(str) != "fake"]
+    d = d.drop_duplicates("run_id", keep="last").set_index("run_id")
+    from analysis.flights import FLIGHT_OBSERVABLES
+    keep = [c for c in ("v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "motion_mode",
+                        *FLIGHT_OBSERVABLES) if c in d.columns]
+    return d[keep]
+
+
 def condition_configs(phys, theta, seed, base_config=None, effects=None):
     """Run config of one condition: ``base_config``, the base parameters ``theta``, the
     condition's frequency, ball and (when stated) stroke, the seed and the effects."""
@@ -105,13 +136,16 @@ class OpenTwinModel(TwinModel):
         :func:`analysis.sweep.run_sweep`
     budget_runs : int or None - refuse a build that needs more new runs than this
     seed0 : int - first seed (seeds seed0 .. seed0 + replicates - 1)
+    known_runs : DataFrame indexed by run_id, None, or 'auto' - results of runs made before
+        (committed tables, :func:`known_run_table`): a planned run found there is not rerun.
+        'auto': the committed tables with the real twin, none with another runner.
     """
 
     def __init__(self, conditions, yield_times_min=None, theta_ref=None, base=DEFAULT_BASE,
                  velocity_frame="lab", flight_conditions=(), replicates=3, diff_replicates=2,
                  effect_names=None, base_config=None, runner=None, workers=2, backend="local",
                  runs_dir=None, progress=True, scheduler=None, slurm=None, budget_runs=None,
-                 seed0=0):
+                 seed0=0, known_runs="auto"):
         if velocity_frame not in ("lab", "jar"):
             raise ValueError("velocity_frame must be 'lab' or 'jar', got %r" % (velocity_frame,))
         unknown = set(base) - set(BASE_STEPS)
@@ -144,6 +178,9 @@ class OpenTwinModel(TwinModel):
                              progress=progress, scheduler=scheduler, slurm=slurm)
         self.budget_runs = budget_runs
         self.seed0 = int(seed0)
+        if isinstance(known_runs, str) and known_runs == "auto":
+            known_runs = known_run_table() if runner is None else None
+        self.known_runs = known_runs
         self.patterns = {}
 
     # ------------------------------------------------------------------ the plan
@@ -194,7 +231,9 @@ class OpenTwinModel(TwinModel):
         _, ids = prepare_configs(list(plan["config"]))
         root = Path(self.sweep_kw["runs_dir"] or RUNS_DIR)
         uniq = dict.fromkeys(ids)
-        cached = sum((root / r / "meta.json").exists() for r in uniq)
+        known = set(self._known_for(pd.DataFrame({"run_id": ids, "condition_id":
+                                                  list(plan["condition_id"])})).index)
+        cached = sum((r in known) or (root / r / "meta.json").exists() for r in uniq)
         new = len(uniq) - cached
         w = max(int(self.sweep_kw["workers"] or 1), 1)
         return {"runs": len(uniq), "cached": cached, "new": new,
@@ -211,7 +250,9 @@ class OpenTwinModel(TwinModel):
         RuntimeError
             a twin run failed (its id and error in the message; finished runs stay cached)
         """
-        from analysis.sweep import run_sweep
+        from analysis.flights import FLIGHT_OBSERVABLES
+        from analysis.sweep import prepare_configs, run_sweep
+        from analysis.twin_model import run_flights
         plan = self.plan(stage)
         ps = self.plan_summary(stage, plan)
         if self.budget_runs is not None and ps["new"] > self.budget_runs:
@@ -219,27 +260,64 @@ class OpenTwinModel(TwinModel):
                               "is %d: raise --budget-runs or cut conditions / replicates"
                               % (ps["new"], ps["cached"], ps["runs"], self.budget_runs))
         t0 = time.time()
-        res = run_sweep(list(plan["config"]), **self.sweep_kw)
-        if not res.ok:
-            raise RuntimeError("%d twin run(s) failed:\n%s" % (
-                res.n_failed, res.failed()[["run_id", "error"]].to_string()))
-        t = res.table.reset_index(drop=True)
+        _, ids = prepare_configs(list(plan["config"]))
         runs = plan.drop(columns=["config"]).copy()
-        for c in ("run_id", "v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "motion_mode"):
-            runs[c] = t[c].to_numpy() if c in t.columns else np.nan
-        if self.flight_conditions:
-            from analysis.flights import FLIGHT_OBSERVABLES
-            from analysis.twin_model import run_flights
-            at = runs["condition_id"].isin(self.flight_conditions)
-            fl = run_flights(list(runs.loc[at, "run_id"]), self.sweep_kw["runs_dir"])
-            for k in FLIGHT_OBSERVABLES:
-                runs[k] = np.nan
-                runs.loc[at, k] = fl[k].to_numpy(float)
+        runs["run_id"] = ids
+        known = self._known_for(runs)
+        todo = ~runs["run_id"].isin(known.index)
+        cols = ["v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "motion_mode"]
+        for c in cols + list(FLIGHT_OBSERVABLES):
+            runs[c] = np.nan
+        runs["motion_mode"] = runs["motion_mode"].astype(object)
+        if len(known):
+            k = known.reindex(runs.loc[~todo, "run_id"])
+            for c in cols + list(FLIGHT_OBSERVABLES):
+                if c in k.columns:
+                    runs.loc[~todo, c] = k[c].to_numpy()
+        if todo.any():
+            res = run_sweep(list(plan.loc[todo, "config"]), **self.sweep_kw)
+            if not res.ok:
+                raise RuntimeError("%d twin run(s) failed:\n%s" % (
+                    res.n_failed, res.failed()[["run_id", "error"]].to_string()))
+            t = res.table.reset_index(drop=True)
+            for c in cols:
+                if c in t.columns:
+                    runs.loc[todo, c] = t[c].to_numpy()
+            at = todo & runs["condition_id"].isin(self.flight_conditions)
+            if at.any():
+                fl = run_flights(list(runs.loc[at, "run_id"]), self.sweep_kw["runs_dir"])
+                for c in FLIGHT_OBSERVABLES:
+                    runs.loc[at, c] = fl[c].to_numpy(float)
         self.runs_ = runs
+        self.n_known_ = int((~todo).sum())
         self.build_s_ = time.time() - t0
         self.stage_ = stage
         self._assemble_model(runs)
         return self
+
+    def _known_for(self, runs) -> pd.DataFrame:
+        """Known results of planned runs (indexed by run id) from ``known_runs``, usable only
+        where they hold every column this model needs (the jar-frame speed for a 'jar'
+        dataset, the impact observables at a condition with a jar track)."""
+        k = self.known_runs
+        if k is None or not len(k):
+            return pd.DataFrame()
+        k = k[k.index.isin(runs["run_id"])]
+        need = ["v_mean_m_s", "f_col_hz"] + (["v_mean_jar_m_s"] if self.velocity_frame == "jar"
+                                             else [])
+        ok = pd.Series(True, index=k.index)
+        for c in need:
+            ok &= k[c].notna() if c in k.columns else False
+        if self.flight_conditions:
+            from analysis.flights import FLIGHT_OBSERVABLES
+            at = set(runs.loc[runs["condition_id"].isin(self.flight_conditions), "run_id"])
+            has = (k[list(FLIGHT_OBSERVABLES)].notna().any(axis=1)
+                   if all(c in k.columns for c in FLIGHT_OBSERVABLES)
+                   else pd.Series(False, index=k.index))
+            # a run in another motion mode has no impact observables: NaN is its value there
+            has |= k.get("motion_mode", pd.Series("", index=k.index)).ne("end_to_end")
+            ok &= ~k.index.isin(list(at)) | has
+        return k[ok]
 
     # ------------------------------------------------------------------ assembly
     def _assemble_model(self, runs):

@@ -278,3 +278,20 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
                     "--budget-runs", "0", "--workers", "1"])
     assert rc == 3 and not (tmp_path / "o2").exists()
     assert "budget" in capsys.readouterr().err
+
+
+def test_committed_runs_are_reused_where_the_physics_and_parameters_match():
+    """At the paper's conditions and the library's anchor, the model's anchor and effect runs
+    are the signature library's very runs (same configs, same run ids): nothing to rerun. A
+    renamed condition still matches (physics); another frequency does not."""
+    from analysis import twin_model
+    summ, meta = twin_model.load_library()
+    conds = pd.DataFrame(meta["conditions"]).assign(
+        condition_id=lambda d: ["mine%d" % i for i in range(len(d))])
+    m = OpenTwinModel(conds, {}, theta_ref=meta["theta_ref"], base=(),
+                      effect_names=("viscoelastic_restitution", "jar_compliance"))
+    ps = m.plan_summary()
+    assert ps["runs"] == 8 * (3 + 2 * 2 * 2) and ps["new"] == 0
+    moved = conds.assign(frequency_hz=conds["frequency_hz"] + 0.37)
+    m2 = OpenTwinModel(moved, {}, theta_ref=meta["theta_ref"], base=(), effect_names=())
+    assert m2.plan_summary()["new"] == 8 * 3
