@@ -12,7 +12,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        signatures hidden-demo bench-hidden
+        signatures hidden-demo bench-hidden loop open-world calibrate
 
 help:
 	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
@@ -20,6 +20,9 @@ help:
 	@echo "make bench-dem | bench-tracking | bench-predict | bench-sweep - benchmarks"
 	@echo "make hidden-demo - hide an effect in twin data, find it blind, add it -> results/hidden_demo/"
 	@echo "make bench-hidden - the hidden-effect suite (rank-1 rate, decoy, nothing-missing, chi2)"
+	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset"
+	@echo "make open-world - blind open-world datasets and the loop on them -> results/open_world/"
+	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/"
 	@echo "make geometry | facet-study | timestep-study | signatures - regenerate committed studies"
 
 setup: venv yade
@@ -93,6 +96,21 @@ hidden-demo: setup
 
 bench-hidden: setup
 	$(VPY) -m analysis.hidden_suite --noise-seeds 5 --fresh --also-without-tracks
+
+# the loop on a user's dataset: model at its conditions, calibrate, diagnose, add, twin rerun
+DATASET ?= data/measurements/paper_table3
+OUT ?= results/loop/$(notdir $(abspath $(DATASET)))
+loop: setup
+	$(VPY) -m analysis.loop --dataset $(DATASET) --out $(OUT)
+
+# blind datasets at conditions the paper never ran (results/open_world/datasets) and the loop
+# on each of them with its score against the hidden truth (results/open_world/loop)
+open-world: setup
+	$(VPY) -m analysis.studies.open_world_data
+	$(VPY) -m analysis.open_suite
+
+calibrate: setup
+	$(VPY) -m analysis.calibrate --out results/calibration
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv

@@ -334,6 +334,30 @@ def _validate_video(meta, fname="videos/video.json"):
                 raise DatasetError("%s: %r must be a positive number, got %r" % (fname, key, v))
 
 
+#: largest plausible value of a column for its unit, with the likely mistake behind a larger one
+PLAUSIBLE_MAX = {
+    "frequency_hz": (60.0, "a mixer mill runs at 3-35 Hz; rpm or cycles per minute?"),
+    "ball_diameter_mm": (50.0, "a milling ball is a few mm to a few cm; um?"),
+    "amplitude_mm": (50.0, "a half stroke of a few mm to a few cm; um?"),
+    "v_mean_m_s": (20.0, "a ball in a mixer mill moves at a few m/s; mm/s or cm/s?"),
+    "v_mean_sd_m_s": (20.0, "mm/s or cm/s?"),
+    "f_col_hz": (1000.0, "collisions per second; per minute?"),
+}
+
+
+def _check_plausible(df, fname):
+    """One DatasetError naming file, row and column for a value implausible for its unit."""
+    for col, (top, hint) in PLAUSIBLE_MAX.items():
+        if col not in df.columns:
+            continue
+        v = pd.to_numeric(df[col], errors="coerce").to_numpy(float)
+        bad = np.flatnonzero(np.isfinite(v) & (v > top))
+        if len(bad):
+            i = int(bad[0])
+            raise DatasetError("%s: %g is implausible for %s (more than %g): %s"
+                               % (_where(fname, i + 1, col), v[i], col, top, hint))
+
+
 def validate(dataset: Dataset) -> Dataset:
     """Validate an in-memory :class:`Dataset` against the contract; return a normalised copy.
 
@@ -349,6 +373,8 @@ def validate(dataset: Dataset) -> Dataset:
     ids = set(cond["condition_id"])
     summ = _validate_table(_as_str(dataset.summary), "summary.csv", _SUMMARY_REQUIRED,
                            empty_ok=_SUMMARY_SD, known_ids=ids, unique_ids=True)
+    _check_plausible(cond, "conditions.csv")
+    _check_plausible(summ, "summary.csv")
     tracks = {}
     for cid, tr in dataset.tracks.items():
         fname = "tracks/%s.csv" % cid

@@ -295,3 +295,16 @@ def test_committed_runs_are_reused_where_the_physics_and_parameters_match():
     moved = conds.assign(frequency_hz=conds["frequency_hz"] + 0.37)
     m2 = OpenTwinModel(moved, {}, theta_ref=meta["theta_ref"], base=(), effect_names=())
     assert m2.plan_summary()["new"] == 8 * 3
+
+
+def test_speeds_in_mm_per_s_are_refused_with_a_unit_hint(tmp_path):
+    import shutil
+    from analysis.config import PAPER_TABLE3_DIR
+    from analysis.measurements import DatasetError
+    d = tmp_path / "ds"
+    shutil.copytree(PAPER_TABLE3_DIR, d)
+    s = pd.read_csv(d / "summary.csv")
+    s.loc[2, "v_mean_m_s"] = 2440.0
+    s.to_csv(d / "summary.csv", index=False)
+    with pytest.raises(DatasetError, match=r"summary.csv.*row 3.*v_mean_m_s.*mm/s"):
+        load_dataset(d)
