@@ -58,6 +58,44 @@ def make(name, out_dir=OUT_DIR, workers=2, runner=None, conditions=CONDITIONS,
                                twin_v_rel_sd=TWIN_V_REL_SD, twin_f_col_sd_hz=TWIN_F_COL_SD_HZ)
 
 
+def make_film_copy(name, out_dir=OUT_DIR, seed=0, progress=True):
+    """The dataset ``name`` with films instead of tracks: each condition's twin run (the one its
+    track came from) filmed by :func:`analysis.synthvideo.render_video` (lab camera, 2134 fps,
+    0.2 mm/px, motion blur, sensor noise, flicker, an occluding bar), written as
+    ``<name>_film`` with ``videos/`` and no ``tracks/``; same summary, yields and truth."""
+    import json
+    import shutil
+    import tempfile
+    from tqdm.auto import tqdm
+    from analysis.config import RUNS_DIR
+    from analysis.measurements import Dataset, load_dataset, write_dataset
+    from analysis.synthvideo import Camera, render_video
+    out_dir = Path(out_dir)
+    ds = load_dataset(out_dir / name)
+    truth = json.loads((out_dir / "truth" / ("%s.truth.json" % name)).read_text())
+    cam = Camera()
+    tmp = Path(tempfile.mkdtemp(prefix="films-"))
+    try:
+        files = {}
+        for cid, rid in tqdm(list(zip(ds.condition_ids, truth["run_ids"])), desc="filming",
+                             unit="film", disable=not progress):
+            f = tmp / ("%s.mkv" % cid)
+            render_video(Path(RUNS_DIR) / rid, f, cam, seed=seed)
+            files[cid] = f
+        film = Dataset(name=name + "_film", description=ds.description + " Delivered as "
+                       "SYNTHETIC films rendered from the same twin runs (no tracks).",
+                       source=ds.source, velocity_frame=ds.velocity_frame,
+                       conditions=ds.conditions, summary=ds.summary, yields=ds.yields,
+                       meta=dict(ds.meta, name=name + "_film"), tracks={},
+                       video={"fps": cam.fps, "m_per_px": cam.m_per_px}, video_files=files)
+        path = write_dataset(film, out_dir / (name + "_film"), overwrite=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    t = dict(truth, name=name + "_film")
+    (out_dir / "truth" / ("%s_film.truth.json" % name)).write_text(json.dumps(t, indent=1))
+    return path
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.studies.open_world_data "
@@ -66,10 +104,15 @@ def main(argv=None):
     ap.add_argument("--only", action="append", choices=sorted(CASES),
                     help="make only this case (repeatable)")
     ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--films", action="append", default=None, metavar="NAME",
+                    help="also write NAME_film: the dataset with films instead of tracks "
+                    "(default: visco)")
     a = ap.parse_args(argv)
     for name in a.only or sorted(CASES):
         ds, truth = make(name, a.out, a.workers)
         print("wrote %s (truth %s)" % (ds, truth))
+    for name in (a.films if a.films is not None else ["visco"]):
+        print("wrote %s" % make_film_copy(name, a.out))
     return 0
 
 
