@@ -196,8 +196,37 @@ def rerun_table(dataset, obs, theta, added, *, replicates, seed0, sweep_kw, base
 
 # --------------------------------------------------------------------------- the loop
 
+def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observables,
+               conditions, seed=0):
+    """Parametric bootstrap of one diagnosis step: ``n_draws`` datasets drawn from the step's
+    calibrated fit (no further effect; Gaussian noise with the stated sigma) are diagnosed like
+    the real one. Returns (c, null_max, n_false): c >= 1 scales the nominal chi2-gain threshold
+    so that the draws' median largest gain sits where the nominal law puts it - what the scan
+    over each strength's range and the bounds add to chance (look-elsewhere); n_false counts
+    the draws in which an effect was significant at the nominal level."""
+    rng = np.random.default_rng(seed)
+    cal = diag.calibrated
+    key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+    mu = cal.prediction.reindex(key).to_numpy(float)
+    sig = np.asarray(cal.sigma, float)
+    null_max, n_false = [], 0
+    for _ in range(int(n_draws)):
+        o = obs.copy()
+        o["value"] = mu + sig * rng.standard_normal(len(mu))
+        d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(), crn_correlation=0.0,
+                     conditions=conditions, alpha=alpha, noise_observables=noise_observables,
+                     effect_se=w.effect_se, structure=False)
+        t = d.table[d.table["identifiable"]]
+        null_max.append(float(t["delta_chi2"].max()) if len(t) else 0.0)
+        n_false += int(d.best is not None)
+    k = max(int(diag.table["identifiable"].sum()), 1)
+    sim = np.max(stats.chi2.rvs(1, size=(4000, k), random_state=1), axis=1)
+    ratio = np.median(null_max) / max(float(np.median(sim)), 1e-12) if null_max else 1.0
+    return max(1.0, float(ratio)), null_max, n_false
+
+
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
-                   noise_observables=None, log=print):
+                   noise_observables=None, log=print, null_draws=0):
     """Forward selection of effects on a model with ``predict``, ``model_se``,
     ``resolution_se``, ``base_params`` and ``effects`` (an :class:`OpenTwinModel` or any model
     of that shape): diagnose, add the best significant effect (its strength joins the fitted
@@ -208,10 +237,15 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
     -------
     dict with 'added' (name -> strength, in order), 'diagnoses' (one Diagnosis per step),
     'steps' (their tables with a ``step`` column), 'stairs' (staircase rows '+ <effect>'),
-    'last_fit' (the fit of the last addition, or None), 'theta' (base parameters there)
+    'last_fit' (the fit of the last addition, or None), 'theta' (base parameters there),
+    'null' (per step: the bootstrap's threshold scale, its draws' largest gains, false alarms)
+
+    With ``null_draws`` > 0 an effect must also beat the nominal threshold scaled by
+    :func:`null_scale` (the significance calibrated on data drawn from the fitted model).
     """
     theta = dict(theta)
     added, diags, step_rows, stairs, last_fit = {}, [], [], [], None
+    nulls = []
     nb = len(model.base_params())
     for step in range(1, max_effects + 2):
         w = _Wrapped(model, added)
@@ -222,9 +256,37 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                         model_se=w.model_se(), crn_correlation=0.0, conditions=conditions,
                         alpha=alpha, noise_observables=noise_observables,
                         effect_se=w.effect_se)
-        diags.append(diag)
         t = diag.table.copy()
         t.insert(0, "step", step)
+        t["threshold_scale"] = 1.0
+        if diag.best is not None and null_draws:
+            c, nm, nf = null_scale(diag, w, obs, _base_params(model, theta, added), effs,
+                                   n_draws=null_draws, alpha=alpha, conditions=conditions,
+                                   noise_observables=noise_observables, seed=step)
+            nulls.append({"step": step, "scale": c, "null_max_delta_chi2": nm,
+                          "n_false": nf, "n_draws": null_draws})
+            t["threshold_scale"] = c
+            need = c * diag.threshold_delta_chi2
+            keep = t["significant"] & (t["delta_chi2"] > need)
+            if not keep.any():
+                log("step %d: %s does not beat the bootstrap-calibrated threshold (chi2 gain "
+                    "%.1f, needed %.1f = %.2f x nominal; %d of %d null draws named an effect)"
+                    % (step, diag.best, float(t.loc[t["effect"] == diag.best, "delta_chi2"]
+                                              .iloc[0]), need, c, nf, null_draws))
+                t["significant"] = False
+                diag.verdict = ("nothing beyond the bootstrap-calibrated threshold: %s gains "
+                                "chi2 %.1f, %.1f needed (%d of %d datasets drawn from the fit "
+                                "without it named an effect at the nominal level)"
+                                % (diag.best, float(t.loc[t["effect"] == diag.best,
+                                                          "delta_chi2"].iloc[0]), need, nf,
+                                   null_draws))
+                diag.best = None
+                diag.status = "nothing_beyond_bootstrap"
+            else:
+                t["significant"] = keep
+                diag.best = str(t.loc[keep, "effect"].iloc[0])
+            diag.table["significant"] = t["significant"].to_numpy()
+        diags.append(diag)
         step_rows.append(t)
         log("step %d: %s" % (step, diag.verdict))
         if diag.best is None or step > max_effects:
@@ -238,14 +300,15 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         last_fit = fit
         stairs.append(_stage_row("+ " + diag.best, fit, nb + len(added)))
     return {"added": added, "diagnoses": diags, "steps": step_rows, "stairs": stairs,
-            "last_fit": last_fit, "theta": theta}
+            "last_fit": last_fit, "theta": theta, "null": nulls}
 
 
 def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicates=2,
              rerun=True, rerun_replicates=3, alpha=0.01, max_effects=MAX_EFFECTS,
              max_reanchor=MAX_REANCHOR, budget_runs=None, base_config=None, runner=None,
              workers=2, backend="local", runs_dir=None, progress=True, scheduler=None,
-             slurm=None, log=print, flights=True, track_cache=None) -> LoopResult:
+             slurm=None, log=print, flights=True, track_cache=None,
+             null_draws=20) -> LoopResult:
     """Run the loop on a loaded :class:`analysis.measurements.Dataset` (see the module doc).
 
     Parameters
@@ -264,6 +327,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     log : callable(str) for progress lines
     track_cache : folder where the tracks of the dataset's films are cached (default
         results/track_cache)
+    null_draws : datasets drawn from the fitted model per step whose diagnosis calibrates the
+        significance threshold (:func:`null_scale`; 0: the nominal Bonferroni level only)
     """
     from analysis.open_model import DEFAULT_BASE
     t_start = time.time()
@@ -338,7 +403,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         from analysis.flights import FLIGHT_OBSERVABLES
         noise |= set(FLIGHT_OBSERVABLES)
     fs = forward_select(model, obs, theta, conditions=dataset.conditions, alpha=alpha,
-                        max_effects=max_effects, noise_observables=noise, log=log)
+                        max_effects=max_effects, noise_observables=noise, log=log,
+                        null_draws=null_draws)
     added, diags, step_rows, last_fit, theta = (fs["added"], fs["diagnoses"], fs["steps"],
                                                 fs["last_fit"], fs["theta"])
     stair += fs["stairs"]
@@ -413,7 +479,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             "anchor": model.theta_ref, "reanchors": reanchors, "held": model.held,
             "new_runs": used["new"], "wall_s": time.time() - t_start,
             "flight_conditions": fl_ids, "alpha": alpha,
-            "tracking": None if tracking is None else tracking.to_dict("records")}
+            "tracking": None if tracking is None else tracking.to_dict("records"),
+            "bootstrap": fs["null"]}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
                       diagnosis=diagnosis, steps=steps, parameters=parameters,
@@ -492,6 +559,9 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha):
         w = list(st.loc[st["significant"], "words"])
         if w and (status != "nothing_missing"):
             parts.append("residual structure: " + "; ".join(w))
+    demoted = [d for d in diags if d.status == "nothing_beyond_bootstrap"]
+    if demoted:
+        parts.append(demoted[-1].verdict)
     if model.held:
         parts.append("held at the anchor: " + ", ".join(model.held))
     if rr is not None:
@@ -584,6 +654,10 @@ def _report(res, dataset):
     md += ["", "## Candidates", ""]
     md += _md_table(res.diagnosis, ["rank", "effect", "kind", "significant", "strength",
                                     "strength_se", "delta_chi2", "p_bonferroni", "step"])
+    for b in i.get("bootstrap") or []:
+        md += ["", "Significance calibrated at step %d on %d datasets drawn from the fitted "
+               "model: threshold x %.2f; %d of them named an effect at the nominal level."
+               % (b["step"], b["n_draws"], b["scale"], b["n_false"])]
     md += ["", "![ranking](ranking.png)", "",
            "Model: %d twin runs at the dataset's conditions (%d new this time), anchor %s%s; "
            "wall time %.0f s." % (len(res.model_runs), i["new_runs"], _fmt_theta(i["anchor"]),
@@ -619,6 +693,9 @@ def main(argv=None):
                     help="seeds per condition of the final twin rerun")
     ap.add_argument("--alpha", type=float, default=0.01,
                     help="family-wise significance level of each diagnosis step")
+    ap.add_argument("--null-draws", type=int, default=20,
+                    help="datasets drawn from the fitted model per step to calibrate the "
+                    "significance threshold (0: nominal level only)")
     ap.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
                     help="most effects added (forward selection)")
     ap.add_argument("--record-s", type=float, default=None,
@@ -661,7 +738,10 @@ def main(argv=None):
                                             ps["cached"], ps["new"], ps["est_wall_s"] / 60,
                                             a.workers, RUN_WALL_S))
             return 0
+        if a.null_draws < 0:
+            raise ValueError("--null-draws must be >= 0, got %d" % a.null_draws)
         res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
+                       null_draws=a.null_draws,
                        rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                        alpha=a.alpha, max_effects=a.max_effects, budget_runs=a.budget_runs,
                        base_config=base_config, runner=runner, workers=a.workers,

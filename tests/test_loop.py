@@ -220,6 +220,12 @@ def test_forward_selection_finds_both_effects_and_stops():
     fs = loop.forward_select(m, _toy_obs(m, {}, 0.01, 7), {"a": 2.0, "b": 0.3},
                              log=lambda s: None)
     assert fs["added"] == {}
+    # with the bootstrap-calibrated threshold: the same answer, and the draws are recorded
+    fs = loop.forward_select(m, _toy_obs(m, truth, 0.01, 0), {"a": 2.0, "b": 0.3},
+                             log=lambda s: None, null_draws=8)
+    assert set(fs["added"]) == {"E1", "E2"}
+    assert len(fs["null"]) == 2 and all(b["scale"] >= 1.0 for b in fs["null"])
+    assert all(len(b["null_max_delta_chi2"]) == 8 for b in fs["null"])
 
 
 # --------------------------------------------------------------------------- the command
