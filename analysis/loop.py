@@ -29,7 +29,7 @@
    ``parameters.csv``        name, role (base / effect / held), value, se
    ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z
    ``model_runs.csv``        every twin run the model used (role, name, value, condition, seed,
-                             run_id, observables)
+                             run_id, observables); ``rerun_runs.csv`` the twin rerun's
    ``loop.json``             verdict, status, effects found, run counts, wall times
    ``tracking.csv``,         (a dataset with films) each film's tracking quality: frames,
    ``tracks/<id>.csv``       lost frames, re-acquisitions, scale; the tracks made from them
@@ -88,6 +88,7 @@ class LoopResult:
     info: dict = field(default_factory=dict)
     diagnoses: list = field(default_factory=list, repr=False)
     tracks: dict = field(default_factory=dict, repr=False)   # tracks made from films
+    rerun_runs: pd.DataFrame | None = None                   # the twin rerun's runs
 
 
 # --------------------------------------------------------------------------- pieces
@@ -440,7 +441,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         chi2 = float(np.nansum(z ** 2))
         dof = int(np.isfinite(z).sum()) - nb - len(added)
         rr = {"prediction": pd.Series(p, index=key), "z": pd.Series(z, index=key),
-              "chi2": chi2, "dof": dof}
+              "chi2": chi2, "dof": dof, "runs": rmodel.runs_}
         stair.append({"stage": "twin rerun", "chi2": chi2, "dof": dof,
                       "chi2_dof": chi2 / max(dof, 1),
                       "p_value": float(stats.chi2.sf(chi2, max(dof, 1))),
@@ -486,7 +487,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                       diagnosis=diagnosis, steps=steps, parameters=parameters,
                       comparison=comp, model_runs=model.runs_, info=info, diagnoses=diags,
                       tracks={c: dataset.tracks[c] for c in (tracking["condition_id"]
-                                                            if tracking is not None else [])})
+                                                            if tracking is not None else [])},
+                      rerun_runs=None if rr is None else rr["runs"])
 
 
 def _fmt_theta(t):
@@ -588,6 +590,8 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
         res.parameters.to_csv(tmp / "parameters.csv", index=False)
         res.comparison.to_csv(tmp / "comparison.csv", index=False)
         res.model_runs.to_csv(tmp / "model_runs.csv", index=False)
+        if res.rerun_runs is not None:
+            res.rerun_runs.to_csv(tmp / "rerun_runs.csv", index=False)
         if res.tracks:
             (tmp / "tracks").mkdir()
             for cid, tr in res.tracks.items():

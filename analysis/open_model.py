@@ -67,14 +67,14 @@ class BudgetError(RuntimeError):
 
 def known_run_table(results_dir=None) -> pd.DataFrame:
     """Results of real twin runs committed in the repository, indexed by run id: the signature
-    library's runs and every ``model_runs.csv`` under results/ (the loop writes one per
-    dataset). The FAKE twin's runs (motion_mode 'fake') are left out."""
+    library's runs and every ``model_runs.csv`` / ``rerun_runs.csv`` under results/ (the loop
+    writes them per dataset). The FAKE twin's runs (motion_mode 'fake') are left out."""
     from analysis.config import RESULTS_DIR
     root = Path(results_dir or RESULTS_DIR)
     files = [root / "signatures" / "signature_runs.csv"]
     skip = (root / "runs", root / "runs_fake")
-    files += sorted(p for p in root.glob("**/model_runs.csv")
-                    if not any(q in p.parents for q in skip))
+    files += sorted(p for pat in ("**/model_runs.csv", "**/rerun_runs.csv")
+                    for p in root.glob(pat) if not any(q in p.parents for q in skip))
     parts = []
     for f in files:
         if f.is_file():
