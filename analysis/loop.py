@@ -124,9 +124,10 @@ class _Wrapped:
     """The model with the effects already added as fitted parameters (forward selection):
     ``predict(theta, eff)`` reads the added strengths from ``theta``."""
 
-    def __init__(self, model, added):
+    def __init__(self, model, added, theta=None):
         self.model = model
         self.added = dict(added)
+        self.theta = None if theta is None else dict(theta)
 
     def predict(self, theta, effects=None):
         th = {k: v for k, v in theta.items() if k not in self.added}
@@ -135,7 +136,7 @@ class _Wrapped:
         return self.model.predict(th, eff)
 
     def model_se(self):
-        se = self.model.model_se()
+        se = self.model.model_se(self.theta)
         if not self.added:
             return se
         ex = self.model.resolution_se(self.added).reindex(se.index).fillna(0.0)
@@ -249,7 +250,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
     nulls = []
     nb = len(model.base_params())
     for step in range(1, max_effects + 2):
-        w = _Wrapped(model, added)
+        w = _Wrapped(model, added, theta)
         effs = [e for e in model.effects() if e.name not in added]
         if not effs:
             break
@@ -387,13 +388,16 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             % ", ".join("%s %+.1f steps" % kv for kv in out.items()))
         reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out})
         model = build(new_ref, "base")
-    if baseline is not None and reanchors:
-        # the staircase's baseline is the model at the first anchor, not the re-anchored one
-        pass
     model = build(model.theta_ref, "all")
     obs = _with_run_sd(obs0, model)
     baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
                                    model_se=model.model_se())
+    theta = {p.name: cal.params[p.name] for p in model.base_params()}
+    # once more with the model's noise where the calibration landed (its base responses are
+    # measured, so away from the anchor they carry their own noise)
+    start = [BaseParameter(p.name, float(np.clip(theta[p.name], p.lower, p.upper)), p.lower,
+                           p.upper) for p in model.base_params()]
+    _, cal = calibrate_base(model.predict, obs, start, model_se=model.model_se(theta))
     theta = {p.name: cal.params[p.name] for p in model.base_params()}
     nb = len(model.base_params())
     stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
@@ -413,7 +417,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     # --- final joint fit (all added strengths with the base): strengths and their se
     final = last_fit if last_fit is not None else cal
     if added:
-        w = _Wrapped(model, added)
+        w = _Wrapped(model, added, theta)
         _, final = calibrate_base(w.predict, obs, _base_params(model, theta, added),
                                   model_se=w.model_se())
         if final.objective > last_fit.objective:

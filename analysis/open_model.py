@@ -480,11 +480,47 @@ class OpenTwinModel(TwinModel):
         return out
 
     def model_se(self, theta=None):
+        """The anchor mean's standard error per key and, away from the anchor, the noise the
+        measured base responses carry there (their level means are means of diff_replicates
+        runs: the quadratic's weights on them times their noise), in quadrature."""
         se = super().model_se(theta)
         if self.velocity_frame == "jar":
             for i, cid in enumerate(self.conditions["condition_id"]):
                 se[(cid, "v_mean_m_s")] = self.col_sd_[i, 2] / math.sqrt(self.n_rep)
-        return se
+        if theta is None:
+            return se
+        var = np.zeros((len(self.conditions), len(self.cols_)))
+        for p, pts in self.base_resp_.items():
+            dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
+            if dx == 0.0:
+                continue
+            for i, pt in enumerate(pts):
+                if pt is None:
+                    continue
+                xs = pt[0]
+                w = _poly_response(xs, np.eye(len(xs)), dx)      # weight of each point
+                w = np.where(xs == 0.0, 0.0, w)                  # the anchor's own: in se
+                var[i] += float(np.sum(w ** 2)) * (2.0 / self.diff_replicates) \
+                    * self.col_sd_[i] ** 2
+        extra = self._series(np.sqrt(var))
+        return np.sqrt(se ** 2 + extra.reindex(se.index).fillna(0.0) ** 2)
+
+    def _series(self, sd):
+        """A per-key Series from per-(condition, column) sds, propagated to the yields through
+        E_tot = m v^2 f_col t / 2 at the anchor (as model_se does)."""
+        from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ as slope
+        out = []
+        vi = 2 if self.velocity_frame == "jar" else 0
+        for i, cid in enumerate(self.conditions["condition_id"]):
+            v, f = self.anchor_[i, :2]
+            out += [sd[i, vi], sd[i, 1]]
+            m = self.mass_kg[i]
+            for t in self.yield_times_min.get(cid, []):
+                out.append(abs(slope) * t * 60.0 / 1000.0
+                           * math.hypot(m * v * f * sd[i, 0], 0.5 * m * v * v * sd[i, 1]))
+            if cid in self.flight_conditions:
+                out += list(sd[i, 3:])
+        return pd.Series(out, index=self.keys)
 
     def resolution_se(self, effects):
         """Interpolation error between the effect levels plus the level means' own noise (a
@@ -501,20 +537,7 @@ class OpenTwinModel(TwinModel):
             for i in range(n):
                 nv = float(np.sum((w[i] * self.sig_noise_[name][i]) ** 2))
                 var[i] += nv * self.col_sd_[i] ** 2
-        sd = np.sqrt(var)
-        from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ as slope
-        out = []
-        vi = 2 if self.velocity_frame == "jar" else 0
-        for i, cid in enumerate(self.conditions["condition_id"]):
-            v, f = self.anchor_[i, :2]
-            out += [sd[i, vi], sd[i, 1]]
-            m = self.mass_kg[i]
-            for t in self.yield_times_min.get(cid, []):
-                out.append(abs(slope) * t * 60.0 / 1000.0
-                           * math.hypot(m * v * f * sd[i, 0], 0.5 * m * v * v * sd[i, 1]))
-            if cid in self.flight_conditions:
-                out += list(sd[i, 3:])
-        return pd.Series(out, index=self.keys)
+        return self._series(np.sqrt(var))
 
     def base_params(self):
         """diagnose BaseParameters: the fitted DEM base parameters (those not held) and, with

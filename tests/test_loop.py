@@ -125,6 +125,13 @@ def test_open_model_builds_at_new_conditions_and_resumes(fake_runs):
                                  "static_friction"}
     for k, why in m.held.items():
         assert "noise" in why
+    # the model's noise: the anchor mean's se at the anchor; away from it the measured base
+    # responses add theirs
+    se0 = m.model_se()
+    assert np.allclose(m.model_se(dict(THETA)).to_numpy(), se0.to_numpy())
+    far = m.model_se(dict(THETA, restitution=THETA["restitution"] + 0.06))
+    assert np.all(far.to_numpy() >= se0.to_numpy() - 1e-15)
+    assert np.any(far.to_numpy() > 1.2 * se0.to_numpy())
     # the interpolation + level noise is zero at null and positive between levels
     assert float(m.resolution_se({}).abs().max()) == 0.0
     assert float(m.resolution_se({"viscoelastic_restitution": 0.45}).max()) > 0.0
