@@ -11,7 +11,15 @@ frame) and writes results/demo/:
 - ``demo.png``: v_mean against frequency for both balls (measured, paper DEM, this twin);
 - ``README.md``: the table and the figure, one page.
 
-    python -m analysis.demo [--replicates 2] [--workers 2] [--record-s 0.5]
+Then it prints the contract lines (4-seed means)::
+
+    paper parameters vs measured: mean |v error| X %, max Y %
+    paper parameters vs paper DEM: mean |v diff| X %, max Y %
+    calibrated twin vs measured: mean |v error| X %, max Y %
+
+and runs the loop on Table 3 (:mod:`analysis.loop`) into results/demo/loop/.
+
+    python -m analysis.demo [--replicates 4] [--workers 2] [--record-s 0.5] [--no-loop]
 """
 import argparse
 import sys
@@ -102,7 +110,7 @@ def plot_demo(table, ax=None):
     return ax
 
 
-def write_page(table, out_dir, meta):
+def write_page(table, out_dir, meta, extra=()):
     cols = ["condition_id", "v_mean_measured_m_s", "v_mean_twin_observed_m_s",
             "v_mean_twin_sd_m_s", "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz",
             "f_col_diff_pct", "motion_modes", "n_replicates"]
@@ -120,7 +128,7 @@ def write_page(table, out_dir, meta):
              % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max(),
                 int((table["f_col_diff_pct"].abs() < 1e-9 + 100 / table["f_col_measured_hz"]
                      / meta["record_s"]).sum()), len(table)),
-             "", "![v_mean over frequency](demo.png)", ""]
+             ""] + ["- " + x for x in extra] + ["", "![v_mean over frequency](demo.png)", ""]
     (out_dir / "README.md").write_text("\n".join(lines))
 
 
@@ -132,12 +140,34 @@ def _has_tabulate():
         return False
 
 
+def calibrated_lines(cond, lib_dir=None):
+    """(table, line) of the twin at the calibrated parameters against Table 3: the signature
+    library's anchor - the real twin at the calibration's posterior mean, 4 seeds per
+    condition, committed in results/signatures - its 4-seed means beside the measured speeds."""
+    from analysis.twin_model import SIGNATURE_DIR, load_library
+    summ, meta = load_library(lib_dir or SIGNATURE_DIR)
+    a = summ[summ["label"] == "none"].set_index("condition_id")
+    t = cond[["condition_id", "frequency_hz", "ball_diameter_mm", "v_mean_m_s"]].copy()
+    t["v_mean_twin_calibrated_m_s"] = a.loc[t["condition_id"], "v_mean_m_s"].to_numpy(float)
+    t["n_seeds"] = a.loc[t["condition_id"], "n"].to_numpy(int)
+    err = 100 * (t["v_mean_twin_calibrated_m_s"] / t["v_mean_m_s"] - 1)
+    t["v_error_pct"] = err
+    line = ("calibrated twin vs measured: mean |v error| %.2f %%, max %.2f %%"
+            % (err.abs().mean(), err.abs().max()))
+    return t, line, meta["theta_ref"]
+
+
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--replicates", type=int, default=2)
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--record-s", type=float, default=0.5)
-    p.add_argument("--out", default=str(DEMO_DIR))
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="example: python -m analysis.demo --replicates 4 --workers 2")
+    p.add_argument("--replicates", type=int, default=4,
+                   help="twin runs per condition at the paper's parameters (seeds)")
+    p.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    p.add_argument("--record-s", type=float, default=0.5, help="recorded time per run [s]")
+    p.add_argument("--out", default=str(DEMO_DIR), help="output folder")
+    p.add_argument("--no-loop", action="store_true",
+                   help="skip the loop on Table 3 (python -m analysis.loop)")
     a = p.parse_args(argv)
     if a.replicates < 1 or a.workers < 1 or a.record_s <= 0:
         print("analysis.demo: error: replicates, workers and record-s must be positive",
@@ -146,41 +176,70 @@ def main(argv=None):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import shutil
     from pathlib import Path
+    from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
     from analysis.sweep import run_sweep
+    try:
+        check_out_dir(a.out)
+    except OutputError as exc:
+        print("analysis.demo: error: %s" % exc, file=sys.stderr)
+        return 2
     t0 = time.time()
     cond = measured_table()
     configs = demo_configs(cond, a.replicates, a.record_s)
     res = run_sweep(configs, workers=a.workers)
     table = summarize_runs(cond, configs, res.table)
+    dem = 100 * (table["v_mean_twin_observed_m_s"] / table["v_mean_dem_paper_m_s"] - 1)
+    table["v_diff_dem_paper_pct"] = dem
+    cal, cal_line, theta = calibrated_lines(cond)
+    paper_meas = ("paper parameters vs measured: mean |v error| %.2f %%, max %.2f %%"
+                  % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max()))
+    paper_dem = ("paper parameters vs paper DEM: mean |v diff| %.2f %%, max %.2f %%"
+                 % (dem.abs().mean(), dem.abs().max()))
     out = Path(a.out)
-    tmp = out.parent / (".tmp-" + out.name)
-    tmp.mkdir(parents=True, exist_ok=True)
-    table.to_csv(tmp / "comparison.csv", index=False, float_format="%.4g")
-    fig, ax = plt.subplots(figsize=(6, 4.2))
-    plot_demo(table, ax)
-    ax.set_title("MM400 twin vs Table 3 (paper contact parameters)")
-    fig.tight_layout()
-    fig.savefig(tmp / "demo.png", dpi=120)
-    plt.close(fig)
-    dflt = twin_config.default_config()
-    write_page(table, tmp, {"amplitude_m": dflt["amplitude_m"], "dt_s": dflt["dt_s"],
-                            "replicates": a.replicates, "record_s": a.record_s,
-                            "wall_s": time.time() - t0})
-    import shutil
-    if out.exists():
-        shutil.rmtree(out)
-    tmp.rename(out)
+    tmp = staging_dir(out)
+    try:
+        table.to_csv(tmp / "comparison.csv", index=False, float_format="%.4g")
+        cal.to_csv(tmp / "calibrated.csv", index=False, float_format="%.4g")
+        fig, ax = plt.subplots(figsize=(6, 4.2))
+        plot_demo(table, ax)
+        ax.set_title("MM400 twin vs Table 3 (paper contact parameters)")
+        fig.tight_layout()
+        fig.savefig(tmp / "demo.png", dpi=120)
+        plt.close(fig)
+        dflt = twin_config.default_config()
+        write_page(table, tmp, {"amplitude_m": dflt["amplitude_m"], "dt_s": dflt["dt_s"],
+                                "replicates": a.replicates, "record_s": a.record_s,
+                                "wall_s": time.time() - t0},
+                   extra=[paper_meas, paper_dem, cal_line + " (the real twin at the "
+                          "calibration's posterior mean %s, 4 seeds per condition, committed "
+                          "in results/signatures)" % ", ".join("%s %.4g" % kv
+                                                               for kv in theta.items())])
+        publish_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     show = ["condition_id", "v_mean_measured_m_s", "v_mean_twin_observed_m_s",
-            "v_mean_twin_sd_m_s", "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz",
-            "motion_modes"]
+            "v_mean_twin_sd_m_s", "v_diff_pct", "v_mean_dem_paper_m_s", "f_col_measured_hz",
+            "f_col_twin_observed_hz", "motion_modes"]
     print(table[show].to_string(index=False, float_format=lambda x: "%.3f" % x))
-    print("mean |v error| %.2f %%, max %.2f %%; wrote %s (%s)"
-          % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max(), out, res))
+    print(paper_meas)
+    print(paper_dem)
+    print(cal_line)
     if not res.ok:
         print("analysis.demo: %d run(s) failed:\n%s" % (res.n_failed, res.failed()[["run_id", "error"]]
                                                         .to_string(index=False)), file=sys.stderr)
         return 1
+    if not a.no_loop:
+        from analysis import loop
+        print("the loop on Table 3 (v sd 1.5 %% assumed: Table 3 states none) -> %s/loop"
+              % a.out)
+        rc = loop.main(["--dataset", str(PAPER_TABLE3_DIR), "--out", str(out / "loop"),
+                        "--workers", str(a.workers)])
+        if rc != 0:
+            return rc
+    print("wrote %s (%.0f s)" % (out, time.time() - t0))
     return 0
 
 
