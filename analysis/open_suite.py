@@ -128,9 +128,15 @@ def main(argv=None):
     ap.add_argument("--out", default=str(OUT_DIR), help="folder of the loop outputs")
     ap.add_argument("--only", action="append", help="only this dataset (repeatable)")
     ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--no-rerun", action="store_true", help="skip each loop's twin rerun")
+    ap.add_argument("--max-reanchor", type=int, default=2,
+                    help="re-anchorings allowed per loop (0: keep the first model)")
+    ap.add_argument("--null-draws", type=int, default=20,
+                    help="bootstrap draws per diagnosis step (0: nominal threshold only)")
     a = ap.parse_args(argv)
     summ = run_suite(a.datasets, a.out, only=a.only, workers=a.workers,
-                     log=lambda s: print(s, file=sys.stderr))
+                     rerun=not a.no_rerun, max_reanchor=a.max_reanchor,
+                     null_draws=a.null_draws, log=lambda s: print(s, file=sys.stderr))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     summ.to_csv(out / "summary.csv", index=False)

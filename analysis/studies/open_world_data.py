@@ -17,6 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
@@ -46,11 +47,42 @@ CASES = {
 }
 
 
+def posterior_draw(k, calibration_dir=None, within_steps=1.0):
+    """Base parameters of null dataset ``k``: a draw from the Table-3 calibration's posterior
+    samples (results/calibration/posterior_samples.csv), seeded by ``k``, rounded to 4 digits,
+    kept only where every parameter lies within ``within_steps`` response steps
+    (:data:`analysis.open_model.BASE_STEPS`) of the anchor - inside the model's measured
+    responses, where no re-anchoring is needed (a draw outside is redrawn; about half of the
+    posterior lies outside one step of restitution or stroke)."""
+    from analysis.config import CALIBRATION_DIR
+    from analysis.open_model import BASE_STEPS
+    from analysis.twin_model import reference_parameters
+    ref = reference_parameters()
+    d = pd.read_csv(Path(calibration_dir or CALIBRATION_DIR) / "posterior_samples.csv")
+    rng = np.random.default_rng(1000 + int(k))
+    while True:
+        row = d.iloc[int(rng.integers(len(d)))]
+        th = {c: float("%.4g" % row[c]) for c in ("restitution", "static_friction",
+                                                  "rolling_friction", "amplitude_m")}
+        if all(abs(th[c] - ref[c]) <= within_steps * BASE_STEPS[c] for c in th):
+            return th
+
+
+def null_cases(n):
+    """``n`` no-effect cases null_p00 .. : independent twin realisations (twin seeds 200 + k)
+    with base parameters drawn from the calibration posterior."""
+    return {"null_p%02d" % k: ({}, 200 + k, posterior_draw(k)) for k in range(int(n))}
+
+
 def make(name, out_dir=OUT_DIR, workers=2, runner=None, conditions=CONDITIONS,
-         base=OFF_ANCHOR):
-    """Write dataset ``name`` of :data:`CASES` into ``out_dir/name`` (truth in out_dir/truth)."""
+         base=OFF_ANCHOR, case=None):
+    """Write dataset ``name`` of :data:`CASES` (or ``case`` = (effects, seed[, base])) into
+    ``out_dir/name`` (truth in out_dir/truth)."""
     from analysis.hidden import make_hidden_dataset
-    effects, seed = CASES[name]
+    case = case or CASES[name]
+    effects, seed = case[0], case[1]
+    if len(case) > 2:
+        base = case[2]
     out_dir = Path(out_dir)
     return make_hidden_dataset(name, effects, conditions=conditions, replicates=1, seed=seed,
                                base_config=dict(base), runner=runner, workers=workers,
@@ -107,9 +139,15 @@ def main(argv=None):
     ap.add_argument("--films", action="append", default=None, metavar="NAME",
                     help="also write NAME_film: the dataset with films instead of tracks "
                     "(default: visco)")
+    ap.add_argument("--nulls", type=int, default=0,
+                    help="also write this many no-effect datasets null_pNN with base "
+                    "parameters drawn from the calibration posterior")
     a = ap.parse_args(argv)
     for name in a.only or sorted(CASES):
         ds, truth = make(name, a.out, a.workers)
+        print("wrote %s (truth %s)" % (ds, truth))
+    for name, case in null_cases(a.nulls).items():
+        ds, truth = make(name, a.out, a.workers, case=case)
         print("wrote %s (truth %s)" % (ds, truth))
     for name in (a.films if a.films is not None else ["visco"]):
         print("wrote %s" % make_film_copy(name, a.out))
