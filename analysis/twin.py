@@ -166,22 +166,35 @@ def _parse_set(items):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description="Run the MM400 twin once (cached by run id).")
-    p.add_argument("--frequency-hz", type=float, default=25.0)
-    p.add_argument("--ball-diameter-mm", type=float, default=20.6)
-    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="other config keys")
+    p = argparse.ArgumentParser(
+        description="Run the MM400 twin once (cached by run id).",
+        epilog="example: python -m analysis.twin --frequency-hz 30 --ball-diameter-mm 17.5 "
+        "--set restitution=0.35 amplitude_m=0.0127")
+    p.add_argument("--frequency-hz", type=float, default=25.0, help="jar frequency [Hz]")
+    p.add_argument("--ball-diameter-mm", type=float, default=20.6, help="ball diameter [mm]")
+    p.add_argument("--set", nargs="*", action="extend", metavar="KEY=VALUE",
+                   help="other run-config keys (yade_scripts/twin_config.py, SI units); "
+                   "frequency_hz and ball_diameter_m here override the options above")
     p.add_argument("--force", action="store_true", help="rerun even if cached")
     a = p.parse_args(argv)
     try:
-        cfg = condition_config(a.frequency_hz, a.ball_diameter_mm * 1e-3, **_parse_set(a.set))
+        extra = _parse_set(a.set)
+        f = extra.pop("frequency_hz", a.frequency_hz)
+        d = extra.pop("ball_diameter_m", a.ball_diameter_mm * 1e-3)
+        cfg = condition_config(f, d, **extra)
+        twin_config.complete_config(dict(cfg))
         run = run_twin(cfg, force=a.force)
         rec = load_recording(run)
-    except (twin_config.ConfigError, TwinRunError) as exc:
+    except (twin_config.ConfigError, TwinRunError, TypeError, ValueError) as exc:
         print("analysis.twin: error: %s" % exc, file=sys.stderr)
         return 2
     s = rec.summary
     print("%s: v_mean %.3f m/s, f_col %.1f /s, mode %s" % (run, s["v_mean_m_s"], s["f_col_hz"],
                                                          s["motion_mode"]))
+    steady = rec.meta.get("steady", {})
+    if isinstance(steady, dict) and steady.get("steady") is False:
+        print("analysis.twin: warning: the run never reached a steady state (meta.json "
+              "steady: false); it recorded anyway after settle_max_s", file=sys.stderr)
     return 0
 
 
