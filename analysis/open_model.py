@@ -426,16 +426,7 @@ class OpenTwinModel(TwinModel):
                           for k, v in self.sig_all_.items()}
         # TwinModel's attributes that predict / model_se read
         self.sig = {k: None for k in self.sig_all_}
-        self.mass_kg = (7800.0 * math.pi / 6.0
-                        * (self.conditions["ball_diameter_mm"].to_numpy(float) * 1e-3) ** 3)
-        keys = []
-        for cid in cids:
-            keys += [(cid, "v_mean_m_s"), (cid, "f_col_hz")]
-            keys += [(cid, "yield_pct@%gmin" % t) for t in self.yield_times_min.get(cid, [])]
-            if cid in self.flight_conditions:
-                keys += [(cid, k) for k in self.flight_obs]
-        self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
-        self._kin = candidates("kinetics")
+        self._init_keys()
         self._gp_cache = {}
 
     @property
@@ -444,17 +435,21 @@ class OpenTwinModel(TwinModel):
         return dict(self.held_)
 
     # ------------------------------------------------------------------ evaluation
-    def _base_change(self, theta):
-        y = np.zeros_like(self.anchor_)
+    def _base_points(self, theta):
+        """(condition index, response points xs, changes ds, offset dx) of every base
+        parameter moved from the anchor in ``theta``, at every condition where it acts."""
         for p, pts in self.base_resp_.items():
             dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
             if dx == 0.0:
                 continue
             for i, pt in enumerate(pts):
-                if pt is None:
-                    continue
-                xs, ds = pt
-                y[i] += _poly_response(xs, ds, dx)
+                if pt is not None:
+                    yield i, pt[0], pt[1], dx
+
+    def _base_change(self, theta):
+        y = np.zeros_like(self.anchor_)
+        for i, xs, ds, dx in self._base_points(theta):
+            y[i] += _poly_response(xs, ds, dx)
         return y
 
     def outputs(self, theta, effects=None):
@@ -490,18 +485,11 @@ class OpenTwinModel(TwinModel):
         if theta is None:
             return se
         var = np.zeros((len(self.conditions), len(self.cols_)))
-        for p, pts in self.base_resp_.items():
-            dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
-            if dx == 0.0:
-                continue
-            for i, pt in enumerate(pts):
-                if pt is None:
-                    continue
-                xs = pt[0]
-                w = _poly_response(xs, np.eye(len(xs)), dx)      # weight of each point
-                w = np.where(xs == 0.0, 0.0, w)                  # the anchor's own: in se
-                var[i] += float(np.sum(w ** 2)) * (2.0 / self.diff_replicates) \
-                    * self.col_sd_[i] ** 2
+        for i, xs, _, dx in self._base_points(theta):
+            w = _poly_response(xs, np.eye(len(xs)), dx)          # weight of each point
+            w = np.where(xs == 0.0, 0.0, w)                      # the anchor's own: in se
+            var[i] += float(np.sum(w ** 2)) * (2.0 / self.diff_replicates) \
+                * self.col_sd_[i] ** 2
         extra = self._series(np.sqrt(var))
         return np.sqrt(se ** 2 + extra.reindex(se.index).fillna(0.0) ** 2)
 

@@ -721,11 +721,16 @@ class TwinModel:
         X = self._em_inputs(self.theta_ref)
         self.em_ref = self.em.predict(X)
         self._init_flights(summ, a, cids, flight_conditions, flight_emulator, pure)
+        self.yield_times_min = {k: list(v) for k, v in (yield_times_min or {}).items()}
+        self._init_keys()
+
+    def _init_keys(self):
+        """Ball masses, the prediction's keys (condition_id, observable) and the kinetics
+        candidates, from the conditions, yield times and flight conditions."""
         self.mass_kg = (STEEL_DENSITY_KG_M3 * math.pi / 6.0
                         * (self.conditions["ball_diameter_mm"].to_numpy(float) * 1e-3) ** 3)
-        self.yield_times_min = {k: list(v) for k, v in (yield_times_min or {}).items()}
         keys = []
-        for cid in cids:
+        for cid in self.conditions["condition_id"]:
             keys += [(cid, "v_mean_m_s"), (cid, "f_col_hz")]
             keys += [(cid, "yield_pct@%gmin" % t) for t in self.yield_times_min.get(cid, [])]
             if cid in self.flight_conditions:
