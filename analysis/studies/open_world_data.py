@@ -138,7 +138,7 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
     ap.add_argument("--films", action="append", default=None, metavar="NAME",
                     help="also write NAME_film: the dataset with films instead of tracks "
-                    "(default: visco)")
+                    "(default: visco; 'none': no films)")
     ap.add_argument("--nulls", type=int, default=0,
                     help="also write this many no-effect datasets null_pNN with base "
                     "parameters drawn from the calibration posterior")
@@ -150,7 +150,8 @@ def main(argv=None):
         ds, truth = make(name, a.out, a.workers, case=case)
         print("wrote %s (truth %s)" % (ds, truth))
     for name in (a.films if a.films is not None else ["visco"]):
-        print("wrote %s" % make_film_copy(name, a.out))
+        if name != "none":
+            print("wrote %s" % make_film_copy(name, a.out))
     return 0
 
 
