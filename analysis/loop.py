@@ -108,8 +108,12 @@ def dataset_observations(dataset, flights=True):
 
 
 def _with_run_sd(obs, model):
-    """A track is one realisation of a chaotic motion: one twin run's scatter is added to the
-    measured sd of its impact observables."""
+    """The observations the model is fitted to: a track is one realisation of a chaotic
+    motion, so one twin run's scatter is added to the measured sd of its impact observables;
+    and the priors of the model's base parameters as pseudo-observations."""
+    pri = getattr(model, "prior_observations", None)
+    if pri is not None and len(pri()):
+        obs = pd.concat([obs, pri()], ignore_index=True)
     if not model.flight_conditions:
         return obs
     run_sd = model.flight_run_sd()
@@ -371,60 +375,63 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         used["new"] += ps["new"]
         return m
 
-    # --- calibrate, re-anchoring where the calibrated point leaves the measured responses
-    model = build(theta_ref, "base")
-    reanchors = []
-    for it in range(max_reanchor + 1):
-        obs = _with_run_sd(obs0, model)
-        baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
-                                       model_se=model.model_se())
-        out = model.outside(cal.params)
-        if not out or it == max_reanchor:
-            break
-        new_ref = dict(model.theta_ref)
-        for p in model.base_names:
-            new_ref[p] = float("%.4g" % cal.params[p])
-        log("calibrated point beyond the measured responses (%s): re-anchoring"
-            % ", ".join("%s %+.1f steps" % kv for kv in out.items()))
-        reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out})
-        model = build(new_ref, "base")
-    model = build(model.theta_ref, "all")
-    obs = _with_run_sd(obs0, model)
-    baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
-                                   model_se=model.model_se())
-    theta = {p.name: cal.params[p.name] for p in model.base_params()}
-    # once more with the model's noise where the calibration landed (its base responses are
-    # measured, so away from the anchor they carry their own noise)
-    start = [BaseParameter(p.name, float(np.clip(theta[p.name], p.lower, p.upper)), p.lower,
-                           p.upper) for p in model.base_params()]
-    _, cal = calibrate_base(model.predict, obs, start, model_se=model.model_se(theta))
-    theta = {p.name: cal.params[p.name] for p in model.base_params()}
-    nb = len(model.base_params())
-    stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
-
-    # --- forward selection
     noise = {"v_mean_m_s", "f_col_hz"}
     if fl_ids:
         from analysis.flights import FLIGHT_OBSERVABLES
         noise |= set(FLIGHT_OBSERVABLES)
-    fs = forward_select(model, obs, theta, conditions=dataset.conditions, alpha=alpha,
-                        max_effects=max_effects, noise_observables=noise, log=log,
-                        null_draws=null_draws)
-    added, diags, step_rows, last_fit, theta = (fs["added"], fs["diagnoses"], fs["steps"],
-                                                fs["last_fit"], fs["theta"])
-    stair += fs["stairs"]
 
-    # --- final joint fit (all added strengths with the base): strengths and their se
-    final = last_fit if last_fit is not None else cal
-    if added:
-        w = _Wrapped(model, added, theta)
-        _, final = calibrate_base(w.predict, obs, _base_params(model, theta, added),
-                                  model_se=w.model_se())
-        if final.objective > last_fit.objective:
-            final = last_fit
-        for k in added:
-            added[k] = float(final.params[k])
-        theta = {k: float(final.params[k]) for k in theta}
+    def analyse(model):
+        """calibrate, forward selection, final joint fit on one model."""
+        obs = _with_run_sd(obs0, model)
+        baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
+                                       model_se=model.model_se())
+        theta = {p.name: cal.params[p.name] for p in model.base_params()}
+        # once more with the model's noise where the calibration landed (its base responses
+        # are measured, so away from the anchor they carry their own noise)
+        start = [BaseParameter(p.name, float(np.clip(theta[p.name], p.lower, p.upper)),
+                               p.lower, p.upper) for p in model.base_params()]
+        _, cal = calibrate_base(model.predict, obs, start, model_se=model.model_se(theta))
+        theta = {p.name: cal.params[p.name] for p in model.base_params()}
+        nb = len(model.base_params())
+        stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
+        fs = forward_select(model, obs, theta, conditions=dataset.conditions, alpha=alpha,
+                            max_effects=max_effects, noise_observables=noise, log=log,
+                            null_draws=null_draws)
+        added, last_fit, theta = fs["added"], fs["last_fit"], fs["theta"]
+        stair += fs["stairs"]
+        # final joint fit (all added strengths with the base): strengths and their se
+        final = last_fit if last_fit is not None else cal
+        if added:
+            w = _Wrapped(model, added, theta)
+            _, f2 = calibrate_base(w.predict, obs, _base_params(model, theta, added),
+                                   model_se=w.model_se())
+            if f2.objective <= last_fit.objective:
+                final = f2
+            for k in added:
+                added[k] = float(final.params[k])
+            theta = {k: float(final.params[k]) for k in theta}
+        return dict(obs=obs, cal=cal, nb=nb, stair=stair, fs=fs, added=added, final=final,
+                    theta=theta)
+
+    # --- build, analyse; re-anchor where the final point leaves the measured responses
+    reanchors = []
+    ref = dict(theta_ref)
+    for it in range(max_reanchor + 1):
+        model = build(ref, "all")
+        an = analyse(model)
+        out = model.outside(an["final"].params)
+        if not out or it == max_reanchor:
+            break
+        new_ref = dict(model.theta_ref)
+        for p in model.base_names:
+            new_ref[p] = float("%.4g" % an["final"].params[p])
+        log("final point beyond the model's measured responses (%s): re-anchoring there"
+            % ", ".join("%s %+.1f steps" % kv for kv in out.items()))
+        reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out})
+        ref = new_ref
+    obs, cal, nb, stair, fs = an["obs"], an["cal"], an["nb"], an["stair"], an["fs"]
+    added, final, theta = an["added"], an["final"], an["theta"]
+    diags, step_rows = fs["diagnoses"], fs["steps"]
     eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
 
     # --- twin rerun at the final parameters
@@ -438,10 +445,12 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                                        sweep_kw=sweep_kw, base_config=base_config,
                                        flight_ids=fl_ids, budget_runs=budget_left())
         key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
-        obs_r = _with_run_sd(obs0, rmodel)
         p = pred.reindex(key).to_numpy(float)
-        s = np.hypot(obs_r["sd"].to_numpy(float), se.reindex(key).to_numpy(float))
-        z = (p - obs_r["value"].to_numpy(float)) / s
+        # the priors' pseudo-observations: the final parameters, as in the model's fit
+        p = np.where(np.isfinite(p), p, final.prediction.reindex(key).to_numpy(float))
+        s = np.hypot(obs["sd"].to_numpy(float),
+                     se.reindex(key).fillna(0.0).to_numpy(float))
+        z = (p - obs["value"].to_numpy(float)) / s
         chi2 = float(np.nansum(z ** 2))
         dof = int(np.isfinite(z).sum()) - nb - len(added)
         rr = {"prediction": pd.Series(p, index=key), "z": pd.Series(z, index=key),

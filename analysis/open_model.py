@@ -57,8 +57,27 @@ EFFECT_LEVELS = (0.5, 1.0)
 #: a one-sided base parameter (a friction) is fitted when its response's chi-square against the
 #: twin's noise exceeds its dof by this many sds
 MIN_BASE_RESPONSE_Z = 3.0
+#: how far beyond its measured response points (in steps) the model may extrapolate linearly
+#: before the loop re-anchors it
+EXTRAPOLATE_STEPS = 0.5
 #: wall time of one default twin run on one core [s] (the planner's estimate; measured 21 s)
 RUN_WALL_S = 21.0
+
+
+#: base parameters fitted with a Gaussian prior (the Table-3 calibration's posterior mean and
+#: sd): material constants of steel on PMMA whose response in a mill is weak and noisy, so that
+#: without a prior a fit pushes them to their bounds on noise
+PRIOR_PARAMS = ("static_friction", "rolling_friction")
+#: the pseudo-condition under which a prior enters the observations
+PRIOR_ID = "prior"
+
+
+def calibration_prior(calibration_dir=None) -> dict:
+    """{name: (mean, sd)} of :data:`PRIOR_PARAMS` from the calibration's summary.json."""
+    import json
+    from analysis.config import CALIBRATION_DIR
+    s = json.loads((Path(calibration_dir or CALIBRATION_DIR) / "summary.json").read_text())
+    return {k: (float(s["params"][k]), float(s["stderr"][k])) for k in PRIOR_PARAMS}
 
 
 class BudgetError(RuntimeError):
@@ -139,13 +158,16 @@ class OpenTwinModel(TwinModel):
     known_runs : DataFrame indexed by run_id, None, or 'auto' - results of runs made before
         (committed tables, :func:`known_run_table`): a planned run found there is not rerun.
         'auto': the committed tables with the real twin, none with another runner.
+    priors : dict {name: (mean, sd)}, None or 'auto' - Gaussian priors of base parameters,
+        entered as pseudo-observations (condition :data:`PRIOR_ID`, see
+        :meth:`prior_observations`); 'auto': :func:`calibration_prior` (the frictions)
     """
 
     def __init__(self, conditions, yield_times_min=None, theta_ref=None, base=DEFAULT_BASE,
                  velocity_frame="lab", flight_conditions=(), replicates=3, diff_replicates=2,
                  effect_names=None, base_config=None, runner=None, workers=2, backend="local",
                  runs_dir=None, progress=True, scheduler=None, slurm=None, budget_runs=None,
-                 seed0=0, known_runs="auto"):
+                 seed0=0, known_runs="auto", priors="auto"):
         if velocity_frame not in ("lab", "jar"):
             raise ValueError("velocity_frame must be 'lab' or 'jar', got %r" % (velocity_frame,))
         unknown = set(base) - set(BASE_STEPS)
@@ -181,6 +203,7 @@ class OpenTwinModel(TwinModel):
         if isinstance(known_runs, str) and known_runs == "auto":
             known_runs = known_run_table() if runner is None else None
         self.known_runs = known_runs
+        self.priors = calibration_prior() if isinstance(priors, str) else dict(priors or {})
         self.patterns = {}
 
     # ------------------------------------------------------------------ the plan
@@ -472,12 +495,38 @@ class OpenTwinModel(TwinModel):
             v = self.outputs(theta, effects)[:, 2]
             for i, cid in enumerate(self.conditions["condition_id"]):
                 out[(cid, "v_mean_m_s")] = v[i]
-        return out
+        return self._with_priors(out, {p: float(theta.get(p, self.theta_ref[p]))
+                                       for p in self.prior_names})
+
+    @property
+    def prior_names(self):
+        """Fitted base parameters that carry a prior."""
+        return [p for p in getattr(self, "base_names", ()) if p in self.priors]
+
+    def _with_priors(self, series, values):
+        if not self.prior_names:
+            return series
+        extra = pd.Series([values.get(p, 0.0) for p in self.prior_names],
+                          index=pd.MultiIndex.from_tuples([(PRIOR_ID, p)
+                                                           for p in self.prior_names],
+                                                          names=series.index.names))
+        return pd.concat([series, extra])
+
+    def prior_observations(self) -> pd.DataFrame:
+        """The priors as observations (condition_id 'prior', observable = the parameter,
+        value = the prior mean, sd = the prior sd): a fit with them maximises the posterior."""
+        return pd.DataFrame({"condition_id": PRIOR_ID, "observable": self.prior_names,
+                             "value": [self.priors[p][0] for p in self.prior_names],
+                             "sd": [self.priors[p][1] for p in self.prior_names]})
 
     def model_se(self, theta=None):
         """The anchor mean's standard error per key and, away from the anchor, the noise the
         measured base responses carry there (their level means are means of diff_replicates
-        runs: the quadratic's weights on them times their noise), in quadrature."""
+        runs: the quadratic's weights on them times their noise), in quadrature; 0 for the
+        priors' pseudo-observations."""
+        return self._with_priors(self._model_se(theta), {})
+
+    def _model_se(self, theta=None):
         se = super().model_se(theta)
         if self.velocity_frame == "jar":
             for i, cid in enumerate(self.conditions["condition_id"]):
@@ -491,7 +540,8 @@ class OpenTwinModel(TwinModel):
             var[i] += float(np.sum(w ** 2)) * (2.0 / self.diff_replicates) \
                 * self.col_sd_[i] ** 2
         extra = self._series(np.sqrt(var))
-        return np.sqrt(se ** 2 + extra.reindex(se.index).fillna(0.0) ** 2)
+        se = np.sqrt(se ** 2 + extra.reindex(se.index).fillna(0.0) ** 2)
+        return se
 
     def _series(self, sd):
         """A per-key Series from per-(condition, column) sds, propagated to the yields through
@@ -525,7 +575,7 @@ class OpenTwinModel(TwinModel):
             for i in range(n):
                 nv = float(np.sum((w[i] * self.sig_noise_[name][i]) ** 2))
                 var[i] += nv * self.col_sd_[i] ** 2
-        return self._series(np.sqrt(var))
+        return self._with_priors(self._series(np.sqrt(var)), {})
 
     def base_params(self):
         """diagnose BaseParameters: the fitted DEM base parameters (those not held) and, with
@@ -546,14 +596,16 @@ class OpenTwinModel(TwinModel):
         return out
 
     def outside(self, theta) -> dict:
-        """{parameter: distance in steps} of the fitted base parameters beyond the measured
-        response points (where the model extrapolates: re-anchor there)."""
+        """{parameter: offset from the anchor in steps} of the base parameters in ``theta``
+        that lie more than :data:`EXTRAPOLATE_STEPS` beyond the measured response points
+        (where the model would extrapolate further: re-anchor there)."""
         out = {}
         for p, pts in self.base_resp_.items():
             dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
             xs = [pt[0] for pt in pts if pt is not None]
-            lo = min(x[0] for x in xs)
-            hi = max(x[-1] for x in xs)
+            tol = EXTRAPOLATE_STEPS * BASE_STEPS[p]
+            lo = min(x[0] for x in xs) - tol
+            hi = max(x[-1] for x in xs) + tol
             if dx < lo - 1e-12 or dx > hi + 1e-12:
                 out[p] = dx / BASE_STEPS[p]
         return out

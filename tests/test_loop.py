@@ -255,7 +255,7 @@ def fake_dataset(tmp_path, monkeypatch):
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     out = tmp_path / "out"
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
-                    "--workers", "1", "--rerun-replicates", "2"])
+                    "--workers", "1", "--rerun-replicates", "2", "--null-draws", "3"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "staircase: baseline" in text and "wrote" in text
@@ -279,7 +279,7 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert (out / "report.md").read_text().startswith("# The loop on fk (SYNTHETIC)")
     # a second run is all cached and replaces only its own folder
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
-                    "--workers", "1", "--rerun-replicates", "2"])
+                    "--workers", "1", "--rerun-replicates", "2", "--null-draws", "0"])
     assert rc == 0
 
 
@@ -363,3 +363,43 @@ def test_films_in_a_dataset_are_tracked_cached_and_read_like_tracks(tmp_path):
     for k in ("e_app", "v_in_m_s", "jar_amplitude_m"):
         assert abs(a.loc[k, "value"] - t.loc[k, "value"]) <= 2 * t.loc[k, "sd"], k
     assert a.loc["e_app", "value"] == pytest.approx(0.3, abs=0.02)
+
+
+def test_friction_prior_enters_as_pseudo_observations(fake_runs):
+    """The frictions carry the calibration's posterior as a Gaussian prior (pseudo-observations
+    under condition 'prior'): predict returns the parameter there, model_se 0."""
+    m = _model(NEW_CONDITIONS.iloc[:2], fake_runs, effect_names=(),
+               priors={"static_friction": (0.5, 0.1), "rolling_friction": (0.3, 0.1)}).fit("base")
+    names = m.prior_names
+    assert set(names) <= {"static_friction", "rolling_friction"}
+    pri = m.prior_observations()
+    assert list(pri["observable"]) == names and set(pri["condition_id"]) <= {"prior"}
+    th = dict(THETA, static_friction=0.61, rolling_friction=0.2)
+    p = m.predict(th, {})
+    for k in names:
+        assert p[("prior", k)] == th[k]
+        assert m.model_se()[("prior", k)] == 0.0
+    none = _model(NEW_CONDITIONS.iloc[:2], fake_runs, effect_names=(), priors=None).fit("base")
+    assert none.prior_names == [] and "prior" not in set(none.predict(THETA, {}).index
+                                                        .get_level_values(0))
+
+
+def test_loop_reanchors_where_the_answer_lies_beyond_the_model(tmp_path):
+    """Data made far from the anchor (restitution 0.55 against 0.35: 3 response steps): the
+    loop rebuilds its model there and its final restitution lies within the new responses."""
+    from analysis.hidden import make_hidden_dataset
+    from analysis.open_model import BASE_STEPS
+    ds_dir, _ = make_hidden_dataset(
+        "far", {}, conditions=WIDE_CONDITIONS, replicates=1, seed=5,
+        base_config=dict(THETA, restitution=0.55), runner=run_fake_twin,
+        runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth",
+        twin_v_rel_sd=0.015, twin_f_col_sd_hz=0.5, progress=False, yield_times_min=())
+    res = loop.run_loop(load_dataset(ds_dir), theta_ref=THETA, runner=run_fake_twin,
+                        runs_dir=tmp_path / "runs", workers=1, progress=False, rerun=False,
+                        null_draws=0, log=lambda s: None)
+    re = res.info["reanchors"]
+    assert len(re) >= 1
+    fit = float(res.parameters.set_index("name").loc["restitution", "value"])
+    anchor = res.info["anchor"]["restitution"]
+    assert abs(fit - anchor) <= 1.5 * BASE_STEPS["restitution"]
+    assert re[0]["to"]["restitution"] != re[0]["from"]["restitution"]
