@@ -494,7 +494,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             "new_runs": used["new"], "wall_s": time.time() - t_start,
             "flight_conditions": fl_ids, "alpha": alpha,
             "tracking": None if tracking is None else tracking.to_dict("records"),
-            "bootstrap": fs["null"]}
+            "bootstrap": fs["null"],
+            "beyond_model": out}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
                       diagnosis=diagnosis, steps=steps, parameters=parameters,
@@ -579,6 +580,11 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha):
         parts.append(demoted[-1].verdict)
     if model.held:
         parts.append("held at the anchor: " + ", ".join(model.held))
+    beyond = model.outside(final.params)
+    if beyond:
+        parts.append("the final point lies beyond the model's measured responses (%s; no "
+                     "re-anchoring left): its figures there are extrapolated"
+                     % ", ".join("%s %+.1f steps" % kv for kv in beyond.items()))
     if rr is not None:
         parts.append("the real twin rerun at the final parameters: chi2/dof %.2f"
                      % (rr["chi2"] / max(rr["dof"], 1)))
