@@ -719,6 +719,9 @@ def main(argv=None):
     ap.add_argument("--null-draws", type=int, default=20,
                     help="datasets drawn from the fitted model per step to calibrate the "
                     "significance threshold (0: nominal level only)")
+    ap.add_argument("--max-reanchor", type=int, default=MAX_REANCHOR,
+                    help="most re-anchorings of the model where the answer lies beyond its "
+                    "measured responses (each costs a new model build)")
     ap.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
                     help="most effects added (forward selection)")
     ap.add_argument("--record-s", type=float, default=None,
@@ -761,10 +764,12 @@ def main(argv=None):
                                             ps["cached"], ps["new"], ps["est_wall_s"] / 60,
                                             a.workers, RUN_WALL_S))
             return 0
+        if a.max_reanchor < 0:
+            raise ValueError("--max-reanchor must be >= 0, got %d" % a.max_reanchor)
         if a.null_draws < 0:
             raise ValueError("--null-draws must be >= 0, got %d" % a.null_draws)
         res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
-                       null_draws=a.null_draws,
+                       null_draws=a.null_draws, max_reanchor=a.max_reanchor,
                        rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                        alpha=a.alpha, max_effects=a.max_effects, budget_runs=a.budget_runs,
                        base_config=base_config, runner=runner, workers=a.workers,

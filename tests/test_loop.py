@@ -255,7 +255,8 @@ def fake_dataset(tmp_path, monkeypatch):
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     out = tmp_path / "out"
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
-                    "--workers", "1", "--rerun-replicates", "2", "--null-draws", "3"])
+                    "--workers", "1", "--rerun-replicates", "2", "--null-draws", "3",
+                    "--max-reanchor", "0"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "staircase: baseline" in text and "wrote" in text
@@ -279,7 +280,8 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert (out / "report.md").read_text().startswith("# The loop on fk (SYNTHETIC)")
     # a second run is all cached and replaces only its own folder
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
-                    "--workers", "1", "--rerun-replicates", "2", "--null-draws", "0"])
+                    "--workers", "1", "--rerun-replicates", "2", "--null-draws", "0",
+                    "--max-reanchor", "0"])
     assert rc == 0
 
 
