@@ -255,7 +255,11 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
     nb = len(model.base_params())
     for step in range(1, max_effects + 2):
         w = _Wrapped(model, added, theta)
-        effs = [e for e in model.effects() if e.name not in added]
+        kinds = {e.name: e.kind for e in model.effects()}
+        kin_in = any(kinds.get(k) == "kinetics" for k in added)
+        # kinetics effects replace the yield law: one at a time (they do not compose)
+        effs = [e for e in model.effects() if e.name not in added
+                and not (kin_in and e.kind == "kinetics")]
         if not effs:
             break
         diag = diagnose(w.predict, obs, _base_params(model, theta, added), effs,
