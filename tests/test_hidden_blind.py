@@ -15,12 +15,12 @@ from analysis.hidden_suite import score_case
 
 pytestmark = [pytest.mark.yade, pytest.mark.slow]
 
-# the hidden effects: an induction period of 1100 J (73 % of its diagnose range) acting on the
-# yields of the twin's runs (a kinetics case), and a viscoelastic wall, k = 0.4 (67 % of its
-# range; a DEM case: found through the apparent restitution of the jar tracks, which v_mean and
-# f_col alone could not do - the recalibrated restitution absorbed it)
-CASES = [({"induction_period": {"induction_energy_j": 1100.0}}, 4242, 42),
-         ({"viscoelastic_restitution": {"k": 0.4}}, 4343, 43)]
+# the hidden effect: a viscoelastic wall, k = 0.4 (67 % of its range; a DEM case: found through
+# the apparent restitution of the jar tracks, which v_mean and f_col alone could not do - the
+# recalibrated restitution absorbed it). The kinetics case (an induction period of 1100 J on
+# the twin's own energies) moved to tests/test_open_world_blind.py, where it runs at 6
+# conditions the paper never ran from committed twin runs (no YADE: 2 min of make test saved).
+CASES = [({"viscoelastic_restitution": {"k": 0.4}}, 4343, 43)]
 
 
 @pytest.mark.parametrize("HIDDEN,seed,twin_seed", CASES,
