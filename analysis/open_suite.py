@@ -141,9 +141,13 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     summ.to_csv(out / "summary.csv", index=False)
     lines = goal_lines(summ)
+    import os
+    from analysis.config import REPO_ROOT
+    rel = os.path.relpath(Path(a.datasets).resolve(), REPO_ROOT)
     md = ["# The loop on blind open-world datasets (SYNTHETIC)", "",
           "Datasets: `%s` (the twin once per condition at conditions the paper never ran, "
-          "off-anchor base parameters, measurement noise, jar tracks, yields)." % a.datasets, ""]
+          "off-anchor base parameters, measurement noise, jar tracks, yields; `*_film`: the "
+          "same delivered as films)." % rel, ""]
     md += ["- " + x for x in lines]
     md += ["", "| dataset | hidden | found | chi2/dof calibrated | last | twin rerun |",
            "|---|---|---|---|---|---|"]
