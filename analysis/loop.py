@@ -58,7 +58,7 @@ from scipy import stats
 
 from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
 from analysis.conditions import ConditionError, label, physics_table
-from analysis.diagnose import (BaseParameter, Effect, calibrate_base, diagnose,
+from analysis.diagnose import (BaseParameter, calibrate_base, diagnose,
                                observations_from_dataset)
 from analysis.measurements import DatasetError, load_dataset
 from analysis.open_model import BudgetError, OpenTwinModel, RUN_WALL_S
@@ -174,7 +174,7 @@ def _stage_row(stage, fit, n_params):
             "p_value": fit.p_value, "n_params": n_params}
 
 
-def rerun_table(dataset, obs, theta, added, *, replicates, seed0, sweep_kw, base_config,
+def rerun_table(dataset, theta, added, *, replicates, seed0, sweep_kw, base_config,
                 flight_ids, budget_runs=None):
     """The twin itself at the final parameters with the added DEM effects on (fresh seeds):
     its prediction per observable and its standard error, as a model with no responses."""
@@ -444,7 +444,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         log("twin rerun at the final parameters (%d seeds per condition)" % rerun_replicates)
         th_full = dict(model.theta_ref)
         th_full.update(theta)
-        pred, se, rmodel = rerun_table(dataset, obs0, th_full, added,
+        pred, se, rmodel = rerun_table(dataset, th_full, added,
                                        replicates=rerun_replicates, seed0=100,
                                        sweep_kw=sweep_kw, base_config=base_config,
                                        flight_ids=fl_ids, budget_runs=budget_left())

@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.conditions import physics_table
-from analysis.twin_model import (BASE_BOUNDS, CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS,
+from analysis.twin_model import (CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS,
                                  V_REL_SD_FLOOR, TwinModel, candidates, curvatures, interp_levels,
                                  interp_sd, reference_parameters)
 
@@ -354,8 +354,6 @@ class OpenTwinModel(TwinModel):
         self.flight_obs = tuple(FLIGHT_OBSERVABLES)
         cols = self.dem_cols + (list(self.flight_obs) if self.flight_conditions else [])
         key = ["role", "name", "value", "condition_id"]
-        g = runs.groupby(key, sort=False)[cols]
-        means = g.mean()
         # replicate sd per condition, pooled over every group of >= 2 seeds there
         var = runs.groupby(key, sort=False)[cols].var()
         pooled = var.groupby(level="condition_id").mean().reindex(cids)
