@@ -58,11 +58,11 @@ from scipy import stats
 
 from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
 from analysis.conditions import ConditionError, label, physics_table
-from analysis.diagnose import (BaseParameter, calibrate_base, diagnose,
-                               observations_from_dataset)
+from analysis.diagnose import BaseParameter, calibrate_base, diagnose
 from analysis.measurements import DatasetError, load_dataset
 from analysis.open_model import BudgetError, OpenTwinModel, RUN_WALL_S
-from analysis.twin_model import candidates, reference_parameters, yield_times_of
+from analysis.twin_model import (candidates, dataset_observations, reference_parameters,
+                                 with_run_sd, yield_times_of)
 
 #: candidate effects beyond this many are not added (a guard against chasing noise)
 MAX_EFFECTS = 3
@@ -93,35 +93,16 @@ class LoopResult:
 
 # --------------------------------------------------------------------------- pieces
 
-def dataset_observations(dataset, flights=True):
-    """(observations, flight condition ids): the dataset's summary and yields, and the impact
-    observables of its tracks that carry the jar."""
-    obs = observations_from_dataset(dataset)
-    fl_ids = []
-    if flights and dataset.tracks:
-        from analysis.flights import dataset_flights
-        fl = dataset_flights(dataset)
-        if len(fl):
-            obs = pd.concat([obs, fl], ignore_index=True)
-            fl_ids = list(dict.fromkeys(fl["condition_id"]))
-    return obs, fl_ids
-
-
 def _with_run_sd(obs, model):
     """The observations the model is fitted to: a track is one realisation of a chaotic
-    motion, so one twin run's scatter is added to the measured sd of its impact observables;
-    and the priors of the model's base parameters as pseudo-observations."""
+    motion, so the sd of its impact observables is at least one twin run's scatter
+    (:func:`analysis.twin_model.with_run_sd`); and the priors of the model's base parameters as pseudo-observations."""
     pri = getattr(model, "prior_observations", None)
     if pri is not None and len(pri()):
         obs = pd.concat([obs, pri()], ignore_index=True)
     if not model.flight_conditions:
         return obs
-    run_sd = model.flight_run_sd()
-    key = list(zip(obs["condition_id"], obs["observable"]))
-    add = np.array([run_sd.get(k, 0.0) for k in key])
-    out = obs.copy()
-    out["sd"] = np.hypot(out["sd"].to_numpy(float), add)
-    return out
+    return with_run_sd(obs, model.flight_run_sd())
 
 
 class _Wrapped:
@@ -357,7 +338,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             % (q.condition_id, q.n_frames, q.n_lost, q.n_reacquired, q.m_per_px * 1e3,
                q.scale_source, " [cached]" if q.cached else "") for q in tracking.itertuples())))
         dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
-    obs0, fl_ids = dataset_observations(dataset, flights)
+    obs0, fl_ids, _ = dataset_observations(dataset, flights)
     theta_ref = dict(theta_ref or reference_parameters())
     used = {"new": 0}
 
@@ -495,6 +476,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                                               r["amplitude_mm"]))
                            for r in phys.drop(columns=["physics_key"]).to_dict("records")],
             "anchor": model.theta_ref, "reanchors": reanchors, "held": model.held,
+            "base_response_z": {k: round(float(v), 2) for k, v in
+                                getattr(model, "response_z_", {}).items()},
             "new_runs": used["new"], "wall_s": time.time() - t_start,
             "flight_conditions": fl_ids, "alpha": alpha,
             "tracking": None if tracking is None else tracking.to_dict("records"),

@@ -8,12 +8,16 @@ cached by run id, so a second build costs nothing and a killed build resumes:
 * **anchor**: the twin at the anchor parameters ``theta_ref`` (default the calibration's
   posterior mean), every effect off, ``replicates`` seeds per condition (default 3);
 * **base parameters** (restitution, stroke, static and rolling friction): the twin at
-  ``theta_ref`` +- ``BASE_STEPS`` (restitution and stroke both sides, the frictions one side)
-  with the first ``diff_replicates`` of the anchor's seeds; the response is the quadratic through
-  the three points (the line through two), extended linearly beyond them. A friction whose
-  response cannot be told from the twin's noise (a chi-square test over every condition and
-  observable) is held at ``theta_ref`` (said in :attr:`held`): fitting noise is not calibrating. Where a dataset states the stroke of a
-  condition (``amplitude_mm``), that condition runs at it and the stroke is not fitted there;
+  ``theta_ref`` +- ``BASE_STEPS`` on both sides, with the first ``diff_replicates`` of the
+  anchor's seeds (the frictions, whose response is weak beside the twin's chaos, with all
+  ``replicates`` of them: :data:`NOISY_BASE`); the response is the quadratic through the three
+  points, extended linearly beyond them. Every base parameter is fitted: the frictions with
+  their calibration prior (a weak response measured with noise is regularised by the prior,
+  not frozen - a friction held at the anchor while the data's differs leaves a misfit that a
+  candidate effect absorbs: 7 of 11 no-effect datasets named one that way). The chi-square
+  z of each response against the twin's noise is kept in :attr:`response_z_`. Where a dataset
+  states the stroke of a condition (``amplitude_mm``), that condition runs at it and the
+  stroke is not fitted there;
 * **DEM effects**: each candidate of the catalog at ``EFFECT_LEVELS`` of its diagnose range,
   ``diff_replicates`` seeds, piecewise linear in its strength coordinate
   (:func:`analysis.twin_model.interp_levels`), with its interpolation error
@@ -49,14 +53,12 @@ from analysis.twin_model import (CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS
 #: base parameters the open model can calibrate, and the step of their response runs
 BASE_STEPS = {"restitution": 0.06, "amplitude_m": 6e-4, "static_friction": 0.15,
               "rolling_friction": 0.15}
-#: parameters whose response is measured on both sides of the anchor (curved responses)
-TWO_SIDED = ("restitution", "amplitude_m")
+#: base parameters whose response is weak beside the twin's chaos: their response runs use
+#: every anchor seed (``replicates``), the others the first ``diff_replicates``
+NOISY_BASE = ("static_friction", "rolling_friction")
 DEFAULT_BASE = ("restitution", "amplitude_m", "static_friction", "rolling_friction")
 #: DEM effect levels, as fractions of each candidate's diagnose range
 EFFECT_LEVELS = (0.5, 1.0)
-#: a one-sided base parameter (a friction) is fitted when its response's chi-square against the
-#: twin's noise exceeds its dof by this many sds
-MIN_BASE_RESPONSE_Z = 3.0
 #: how far beyond its measured response points (in steps) the model may extrapolate linearly
 #: before the loop re-anchors it
 EXTRAPOLATE_STEPS = 0.5
@@ -211,6 +213,11 @@ class OpenTwinModel(TwinModel):
         a = self.phys["amplitude_mm"].iloc[i]
         return bool(np.isfinite(a))
 
+    def base_seeds(self, p) -> int:
+        """Seeds per response level of base parameter ``p`` (:data:`NOISY_BASE`: all
+        ``replicates``; the others ``diff_replicates``)."""
+        return self.replicates if p in NOISY_BASE else self.diff_replicates
+
     def plan(self, stage="all") -> pd.DataFrame:
         """Every run the model needs: role ('anchor', 'base', 'effect'), name, value (parameter
         value or effect strength), condition_id, seed, config; one row per run."""
@@ -225,12 +232,9 @@ class OpenTwinModel(TwinModel):
             for p in self.base_requested:
                 if p == "amplitude_m" and self._stated_amplitude(i):
                     continue
-                vals = [ref[p] + BASE_STEPS[p]]
-                if p in TWO_SIDED:
-                    vals = [ref[p] - BASE_STEPS[p]] + vals
-                for v in vals:
+                for v in (ref[p] - BASE_STEPS[p], ref[p] + BASE_STEPS[p]):
                     v = float("%.4g" % v)
-                    for k in range(self.diff_replicates):
+                    for k in range(self.base_seeds(p)):
                         rows.append(("base", p, v, cid, self.seed0 + k, condition_configs(
                             ph, dict(ref, **{p: v}), self.seed0 + k, self.base_config)))
             if stage == "all":
@@ -390,9 +394,24 @@ class OpenTwinModel(TwinModel):
             return out
 
         cid_has_flights = [c in self.flight_conditions for c in cids]
+        # the motion mode most of the anchor's runs move in, and per group of runs the share
+        # moving in it: a level where fewer than half do lies across a bifurcation
+        mm = runs.assign(motion_mode=runs["motion_mode"].fillna(""))
+        anchor_mode = {c: (mm.loc[(mm["role"] == "anchor") & (mm["condition_id"] == c),
+                                  "motion_mode"].value_counts().index[0]
+                           if ((mm["role"] == "anchor") & (mm["condition_id"] == c)).any()
+                           else "") for c in cids}
+        share = mm.assign(same=[m == anchor_mode.get(c, "") for m, c in
+                                zip(mm["motion_mode"], mm["condition_id"])]).groupby(
+            ["role", "name", "value", "condition_id"], sort=False)["same"].mean()
+
+        def mode_jumps(key):
+            return bool(share.get(key, 1.0) < 0.5)
+
         # base responses: per parameter, per condition points (x - ref, change)
         self.base_resp_ = {}
         self.held_ = {}
+        self.response_z_ = {}
         for p in self.base_requested:
             dm = diff_means("base", p)
             pts = []
@@ -404,27 +423,27 @@ class OpenTwinModel(TwinModel):
                 x = np.array([0.0] + [v - self.theta_ref[p] for v in xs])
                 ds = np.vstack([np.zeros(len(cols))] + [dm[(v, cid)][0] for v in xs])
                 o = np.argsort(x)
-                pts.append((x[o], ds[o]))
-            # identifiable? a chi-square test of the measured changes against their noise
-            # (difference of two means of diff_replicates runs), over every condition and
-            # observable, z = (T - n) / sqrt(2 n); restitution and stroke are always fitted
+                # a level whose runs move in another motion mode than the anchor's: the
+                # response jumps somewhere between them (a bifurcation), not smoothly
+                jump = np.array([False] + [mode_jumps(("base", p, v, cid)) for v in xs])
+                pts.append((x[o], ds[o], jump[o]))
+            # how far the response stands out of the twin's noise: a chi-square over every
+            # condition and observable of the measured changes against the noise of a
+            # difference of two means of the level's seeds, z = (T - n) / sqrt(2 n)
             T, n = 0.0, 0
             for i, pt in enumerate(pts):
                 if pt is None:
                     continue
-                noise = self.col_sd_[i] * math.sqrt(2.0 / self.diff_replicates)
+                noise = self.col_sd_[i] * math.sqrt(2.0 / self.base_seeds(p))
                 used = [2 if self.velocity_frame == "jar" else 0, 1] + list(
                     range(3, len(cols)) if cid_has_flights[i] else [])
                 r = pt[1][pt[0] != 0][:, used] / noise[used]
                 r = r[np.isfinite(r)]
                 T += float(np.sum(r ** 2))
                 n += r.size
-            z = (T - n) / math.sqrt(2.0 * n) if n else 0.0
+            self.response_z_[p] = (T - n) / math.sqrt(2.0 * n) if n else float("nan")
             if all(pt is None for pt in pts):
                 self.held_[p] = "stated by the dataset at every condition"
-            elif z < MIN_BASE_RESPONSE_Z and p not in TWO_SIDED:
-                self.held_[p] = ("its response is within the twin's noise (chi-square z = "
-                                 "%.1f < %g)" % (z, MIN_BASE_RESPONSE_Z))
             else:
                 self.base_resp_[p] = pts
         self.base_names = tuple(p for p in self.base_requested if p in self.base_resp_)
@@ -456,21 +475,21 @@ class OpenTwinModel(TwinModel):
         return dict(self.held_)
 
     # ------------------------------------------------------------------ evaluation
-    def _base_points(self, theta):
-        """(condition index, response points xs, changes ds, offset dx) of every base
-        parameter moved from the anchor in ``theta``, at every condition where it acts."""
+    def _base_points(self, theta, names=False):
+        """(condition index, response points xs, changes ds, offset dx[, parameter]) of every
+        base parameter moved from the anchor in ``theta``, at every condition where it acts."""
         for p, pts in self.base_resp_.items():
             dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
             if dx == 0.0:
                 continue
             for i, pt in enumerate(pts):
                 if pt is not None:
-                    yield i, pt[0], pt[1], dx
+                    yield (i, pt, dx, p) if names else (i, pt, dx)
 
     def _base_change(self, theta):
         y = np.zeros_like(self.anchor_)
-        for i, xs, ds, dx in self._base_points(theta):
-            y[i] += _poly_response(xs, ds, dx)
+        for i, pt, dx in self._base_points(theta):
+            y[i] += _response(pt, pt[1], dx)
         return y
 
     def outputs(self, theta, effects=None):
@@ -532,11 +551,13 @@ class OpenTwinModel(TwinModel):
         if theta is None:
             return se
         var = np.zeros((len(self.conditions), len(self.cols_)))
-        for i, xs, _, dx in self._base_points(theta):
-            w = _poly_response(xs, np.eye(len(xs)), dx)          # weight of each point
+        for i, pt, dx, p in self._base_points(theta, names=True):
+            xs = pt[0]
+            w = _response(pt, np.eye(len(xs)), dx)               # weight of each point
             w = np.where(xs == 0.0, 0.0, w)                      # the anchor's own: in se
-            var[i] += float(np.sum(w ** 2)) * (2.0 / self.diff_replicates) \
+            var[i] += float(np.sum(w ** 2)) * (2.0 / self.base_seeds(p)) \
                 * self.col_sd_[i] ** 2
+            var[i] += _jump_var(pt, dx)
         extra = self._series(np.sqrt(var))
         se = np.sqrt(se ** 2 + extra.reindex(se.index).fillna(0.0) ** 2)
         return se
@@ -616,6 +637,43 @@ class OpenTwinModel(TwinModel):
                 vals += list(self.col_sd_[i, 3:])
         return pd.Series(vals, index=pd.MultiIndex.from_tuples(
             rows, names=["condition_id", "observable"]), dtype=float)
+
+
+def _jump_side(pt, dx):
+    """Index of the response point on ``dx``'s side of the anchor when that level lies in
+    another motion mode (a jump between them), else None."""
+    xs, _, jump = pt
+    k = 0 if dx < 0 else len(xs) - 1
+    return k if (xs[k] != 0.0 and np.sign(xs[k]) == np.sign(dx) and jump[k]) else None
+
+
+def _response(pt, ds, dx):
+    """Change at offset ``dx`` from response points ``pt`` = (xs, changes, jump) with the rows
+    ``ds``: :func:`_poly_response` where the levels move in the anchor's motion mode. Towards
+    a level in another mode the response is a jump at an unknown place between them: its
+    mean, the jump times the chance it happened by ``dx`` (uniform between the anchor and the
+    level: linear up to the level, flat beyond); the other side is then the line through the
+    anchor and its own level (the jumped level must not bend it)."""
+    xs, _, jump = pt
+    if not np.any(jump):
+        return _poly_response(xs, ds, dx)
+    k = _jump_side(pt, dx)
+    if k is not None:
+        return ds[k] * min(dx / xs[k], 1.0)
+    other = [j for j in range(len(xs)) if xs[j] != 0.0 and np.sign(xs[j]) == np.sign(dx)]
+    if not other:
+        return 0.0 * ds[0]
+    return ds[other[0]] * (dx / xs[other[0]])
+
+
+def _jump_var(pt, dx):
+    """Variance the unknown place of a jump adds at ``dx`` (a Bernoulli of probability
+    p = dx / x_level times the jump: D^2 p (1 - p)); 0 where no jump lies on dx's side."""
+    k = _jump_side(pt, dx)
+    if k is None:
+        return 0.0
+    q = min(dx / pt[0][k], 1.0)
+    return np.nan_to_num(pt[1][k] ** 2) * q * (1.0 - q)
 
 
 def _poly_response(xs, ds, dx):

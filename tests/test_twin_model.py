@@ -343,7 +343,8 @@ def test_factory_reads_jar_tracks_and_diagnose_runs(fake, tmp_path):
     assert len(obs) == 16 + 5 and len(fl) == 1
     from analysis.flights import dataset_flights
     own = dataset_flights(ds).set_index("observable").loc["e_app", "sd"]
-    assert fl["sd"].iloc[0] == pytest.approx(np.hypot(own, 0.01), rel=1e-9)
+    # the larger of the operator's se and one run's scatter (0.01): both are that chaos
+    assert fl["sd"].iloc[0] == pytest.approx(max(own, 0.01), rel=1e-9)
     assert set(prob["noise_observables"]) >= {"e_app", "jar_amplitude_m"}
     assert set(map(tuple, obs[["condition_id", "observable"]].to_numpy())) == \
         set(prob["predict"](THETA, {}).index)
