@@ -66,6 +66,11 @@ TRACK_COLUMNS = ("t_s", "x_m", "y_m")
 TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "jar_x_m",
                       "jar_vx_m_s")
 IMPACT_COLUMNS = ("event_id", "t_start_s", "t_end_s", "where")
+#: Plausible measured collision frequency as a multiple of 2 f (two end impacts per jar cycle):
+#: a result outside [low, high] x 2 f is flagged (``f_col_suspect``) and the CLI warns; it is
+#: not an error (a ball sliding or stuck at one end can be real), but usually means a wrong
+#: frequency or frame rate, or a track that misses reversals.
+F_COL_PLAUSIBLE_RATIO = (0.5, 1.5)
 
 
 class ObserveError(ValueError):
@@ -114,6 +119,10 @@ class ObservationResult:
     params : dict
         fps, frequency_hz, window_frames, polyorder, deadband_m_s, noise_px-equivalent [m],
         frame, kink_correction, mass_kg, ...
+    f_col_ratio_2f : float
+        f_col_hz / (2 frequency_hz) [-] (the jar frequency given or estimated).
+    f_col_suspect : bool
+        f_col_ratio_2f outside :data:`F_COL_PLAUSIBLE_RATIO` (see :meth:`f_col_warning`).
     """
 
     v_mean_m_s: float
@@ -133,14 +142,27 @@ class ObservationResult:
     n_kinks: int
     count_duration_s: float
     params: dict = field(default_factory=dict)
+    f_col_ratio_2f: float = float("nan")
+    f_col_suspect: bool = False
+
+    def f_col_warning(self) -> str | None:
+        """One sentence when f_col is far from 2 f (``f_col_suspect``), else None."""
+        if not self.f_col_suspect:
+            return None
+        f = self.params.get("frequency_hz", float("nan"))
+        lo, hi = F_COL_PLAUSIBLE_RATIO
+        return (f"measured f_col {self.f_col_hz:.4g} /s is {self.f_col_ratio_2f:.2f} x 2f "
+                f"(f = {f:g} Hz, 2f = {2 * f:g} /s; plausible {lo:g}-{hi:g} x 2f): check the "
+                "jar frequency, the frame rate and the track's lost frames")
 
     def to_frame(self) -> pd.DataFrame:
-        """One-row summary: the figures and the parameters used."""
+        """One-row summary: the figures, the f_col plausibility flag and the parameters used."""
         row = {"v_mean_m_s": self.v_mean_m_s, "v_mean_raw_m_s": self.v_mean_raw_m_s,
                "e_kin_j": self.e_kin_j, "f_col_hz": self.f_col_hz,
                "f_col_interval_hz": self.f_col_interval_hz, "n_collisions": self.n_collisions,
                "duration_s": self.duration_s, "gap_fraction": self.gap_fraction,
-               "n_kinks": self.n_kinks}
+               "n_kinks": self.n_kinks, "f_col_ratio_2f": self.f_col_ratio_2f,
+               "f_col_suspect": self.f_col_suspect}
         row.update({f"param_{k}": v for k, v in self.params.items()})
         return pd.DataFrame([row])
 
@@ -460,10 +482,14 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
               "frame": frame, "kink_correction": bool(kink_correction),
               "mass_kg": float("nan") if mass_kg is None else float(mass_kg),
               "bridge_frames": bridge, "max_gap_fraction": max_gap_fraction}
+    ratio = f_col / (2.0 * frequency_hz)
     return ObservationResult(float(v_mean), float(v_mean_raw), float(e_kin), float(f_col),
                              float(f_int), n_col, ct, tm, vxs, vys, vxr, vyr, float(duration),
                              float(gap_fraction), n_kinks,
-                             float(duration + count_extra), params)
+                             float(duration + count_extra), params,
+                             f_col_ratio_2f=float(ratio),
+                             f_col_suspect=bool(not (F_COL_PLAUSIBLE_RATIO[0] <= ratio
+                                                     <= F_COL_PLAUSIBLE_RATIO[1])))
 
 
 # --------------------------------------------------------------------------------------------
@@ -653,7 +679,8 @@ def operator_bias(recording, frame: str = "lab", fps: float | None = None,
 
     Rows: v_mean (operator vs true 3-D speed, and vs the camera-plane 2-D speed, which splits the
     projection bias from the operator's own), e_kin, f_col. Columns: quantity, operator, direct,
-    difference, relative.
+    difference, relative, frame, flag (on the f_col_hz row, the operator's
+    :meth:`ObservationResult.f_col_warning` when its f_col is far from 2 f; else empty).
     """
     obs = observe_recording(recording, fps=fps, frame=frame, **kwargs)
     d = direct_figures(recording, frame=frame)
@@ -665,6 +692,8 @@ def operator_bias(recording, frame: str = "lab", fps: float | None = None,
     out["difference"] = out["operator"] - out["direct"]
     out["relative"] = out["difference"] / out["direct"]
     out["frame"] = frame
+    out["flag"] = ["" if q != "f_col_hz" else (obs.f_col_warning() or "")
+                   for q in out["quantity"]]
     return out
 
 
@@ -674,12 +703,18 @@ def operator_bias(recording, frame: str = "lab", fps: float | None = None,
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m analysis.observe",
-        description="Observation operator: track CSV or twin recording -> v_mean, E_kin, f_col.")
+        description="Observation operator: track CSV or twin recording -> v_mean, E_kin, f_col. "
+                    "A measured f_col outside %g-%g x 2f is flagged (column f_col_suspect, or "
+                    "flag) with a warning on stderr." % F_COL_PLAUSIBLE_RATIO,
+        epilog="example: python -m analysis.observe track.csv --fps 2134 --frequency-hz 25 "
+               "--mass-kg 0.0357 --out summary.csv")
     p.add_argument("track", nargs="?", help="track CSV (t_s, x_m, y_m[, quality, jar_x_m])")
     p.add_argument("--recording", help="twin run folder: operator, direct figures and bias")
-    p.add_argument("--fps", type=float, default=None)
-    p.add_argument("--frequency-hz", type=float, default=None)
-    p.add_argument("--mass-kg", type=float, default=None)
+    p.add_argument("--fps", type=float, default=None,
+                   help="camera frame rate [1/s] (default: from the track's t_s)")
+    p.add_argument("--frequency-hz", type=float, default=None,
+                   help="jar frequency [Hz] (default: from the spectrum of x, or the recording)")
+    p.add_argument("--mass-kg", type=float, default=None, help="ball mass [kg] for E_kin")
     p.add_argument("--frame", choices=("lab", "jar"), default="lab")
     p.add_argument("--plain", action="store_true", help="no kink correction (paper's recipe)")
     p.add_argument("--noise-study", action="store_true",
@@ -702,10 +737,12 @@ def main(argv=None) -> int:
             table = operator_bias(a.recording, **kw)
             print(table.to_string(index=False))
             out_df = table
+            warning = next((f for f in table["flag"] if f), None)
         elif a.track:
             res = observe_track_file(a.track, **kw)
             out_df = res.to_frame()
             print(out_df.T.to_string(header=False))
+            warning = res.f_col_warning()
         else:
             p.error("give a track CSV, --recording DIR or --noise-study")
             return 2
@@ -716,8 +753,10 @@ def main(argv=None) -> int:
             out_df.to_csv(tmp, index=False)
             tmp.replace(out)
     except (ObserveError, ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"analysis.observe: error: {exc}", file=sys.stderr)
         return 2
+    if warning:
+        print(f"analysis.observe: warning: {warning}", file=sys.stderr)
     return 0
 
 

@@ -9,7 +9,17 @@ Function::
 CLI::
 
     python -m analysis.predict --frequency-hz 27.5 --ball-diameter-mm 20 --time-min 15 [--json]
+    python -m analysis.predict --frequency-hz 35 --ball-diameter-mm 20 --time-min 15 --extrapolate
     python -m analysis.predict --compare [--twin-table CSV]     # Table 6 / Figure 14
+
+Inputs are checked before anything is loaded: frequency, ball diameter and jar volume finite and
+> 0, times finite, >= 0 and in order, and the ball smaller than the twin's jar (measured from the
+run config's default STL with the scene's own rule, :func:`geometry.stl_io.ball_fit_error`). A
+condition outside the surrogates' training domain (the bundle's :class:`DomainCheck`: frequency and
+BVR ranges and their convex hull) is refused with a message naming that domain, unless
+``--extrapolate`` is given: then the answer is marked EXTRAPOLATED and its bands are the union of
+the lr, rf and gp surrogates' bands (:meth:`Predictor.query_extrapolated`), so the models'
+disagreement off the training data widens them.
 
 The surrogate comes from ``results/surrogate/surrogate.joblib`` (``python -m analysis.surrogate``);
 when it is missing it is trained on the fly from ``--twin-table`` (or, failing that, from the
@@ -21,6 +31,7 @@ the source labels.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import shutil
 import sys
@@ -42,6 +53,10 @@ COMPARE_DIR = config.RESULTS_DIR / "predict"
 
 class PredictInputError(ValueError):
     """Bad prediction input (negative time, times out of order, impossible geometry ...)."""
+
+
+#: Surrogate kinds whose disagreement widens an extrapolated answer.
+EXTRAPOLATION_KINDS = sur.KINDS
 
 
 @dataclass
@@ -68,9 +83,14 @@ class Predictor:
         Parameters
         ----------
         frequency_hz : float - jar frequency [Hz], > 0
-        ball_diameter_m : float - ball diameter [m], > 0
+        ball_diameter_m : float - ball diameter [m], > 0 and smaller than the twin's jar
+            (:func:`twin_jar`)
         time_min : float or ndarray, shape (m,) - milling times [min], >= 0, non-decreasing
         jar_volume_m3 : float - jar volume [m3] (BVR = ball volume / jar volume)
+
+        A condition outside the surrogates' training domain is answered and flagged
+        (out_of_domain); the CLI refuses it (:func:`domain_error`) unless asked to extrapolate
+        (:meth:`query_extrapolated`).
 
         Returns
         -------
@@ -81,13 +101,8 @@ class Predictor:
         _check_scalar("frequency_hz", frequency_hz)
         _check_scalar("ball_diameter_m", ball_diameter_m)
         _check_scalar("jar_volume_m3", jar_volume_m3)
-        t = np.atleast_1d(np.asarray(time_min, dtype=float))
-        if t.ndim != 1 or t.size == 0 or np.any(~np.isfinite(t)):
-            raise PredictInputError("time_min must be one or more finite numbers")
-        if np.any(t < 0):
-            raise PredictInputError(f"time_min must be >= 0, got {t[t < 0][0]:g}")
-        if np.any(np.diff(t) < 0):
-            raise PredictInputError("time_min values must be in increasing order")
+        t = _check_times("time_min", time_min)
+        _check_ball_fits_jar(ball_diameter_m)
         try:
             s = self.surrogate.predict_arrays(frequency_hz, ball_diameter_m, jar_volume_m3,
                                               kind=self.kind)
@@ -112,14 +127,154 @@ class Predictor:
         cols["out_of_domain"] = np.full(t.shape, bool(s["out_of_domain"][0]))
         return pd.DataFrame(cols)
 
+    def query_extrapolated(self, frequency_hz: float, ball_diameter_m: float, time_min,
+                           jar_volume_m3: float = sur.JAR_VOLUME_M3,
+                           alpha: float = 0.05) -> pd.DataFrame:
+        """:meth:`query` with bands widened by the surrogates' disagreement (for a condition
+        outside the training domain).
 
-def _check_scalar(name, value):
+        Every kind of :data:`EXTRAPOLATION_KINDS` (lr, rf, gp) predicts (v_mean, f_col); each
+        gives E_tot and yield bands through the same kinetics fit. The central values stay those
+        of this predictor's kind; ci_lo / pi_lo become the smallest and ci_hi / pi_hi the largest
+        over the kinds (the union of their bands, so never narrower than the single model's);
+        regime_uncertain is also set where the kinds disagree on the regime.
+
+        Returns
+        -------
+        DataFrame: the columns of :meth:`query` plus v_mean_spread_m_s, f_col_spread_hz,
+        e_tot_lo_j, e_tot_hi_j, yield_spread_pct (max - min over the kinds) and
+        extrapolated (True)
+
+        Raises
+        ------
+        PredictInputError - the bundle lacks one of the kinds, or one of them predicts a
+            negative speed or collision frequency
+        """
+        missing = [k for k in EXTRAPOLATION_KINDS if k not in self.surrogate.models]
+        if missing:
+            raise PredictInputError(
+                "extrapolation needs the " + ", ".join(EXTRAPOLATION_KINDS) + " surrogates, the "
+                f"bundle has {', '.join(self.surrogate.models)} (missing {', '.join(missing)}): "
+                "train them with python -m analysis.surrogate")
+        base = self.query(frequency_hz, ball_diameter_m, time_min, jar_volume_m3, alpha)
+        t = base["time_min"].to_numpy(float)
+        mass_kg = float(kin.ball_mass_kg(ball_diameter_m, self.density_kg_m3))
+        v_k, f_k, e_k, bands = [], [], [], []
+        for k in EXTRAPOLATION_KINDS:
+            s = self.surrogate.predict_arrays(frequency_hz, ball_diameter_m, jar_volume_m3,
+                                              kind=k)
+            v, fcol = float(s["v_mean_m_s"][0]), float(s["f_col_hz"][0])
+            if v < 0 or fcol < 0:
+                raise PredictInputError(f"surrogate {k} returned a negative output (v {v:.3g} "
+                                        f"m/s, f_col {fcol:.3g} Hz): too far outside its "
+                                        "training domain to extrapolate")
+            e_tot = 0.5 * mass_kg * v * v * fcol * t * 60.0
+            v_k.append(v)
+            f_k.append(fcol)
+            e_k.append(e_tot)
+            bands.append(kin.yield_bands(self.kinetics, e_tot, alpha))
+        out = base.copy()
+        for col, pick in (("ci_lo", np.minimum), ("pi_lo", np.minimum), ("ci_hi", np.maximum),
+                          ("pi_hi", np.maximum)):
+            out[col] = pick.reduce([out[col].to_numpy(float)] + [b[col] for b in bands])
+        regimes = np.array([b["regime"] for b in bands], dtype=object)
+        out["regime_uncertain"] = (out["regime_uncertain"].to_numpy(bool)
+                                   | np.any([b["regime_uncertain"] for b in bands], axis=0)
+                                   | np.any(regimes != out["regime"].to_numpy(object), axis=0))
+        ys = np.array([b["yield_pct"] for b in bands])
+        e = np.array(e_k)
+        out["v_mean_spread_m_s"] = max(v_k) - min(v_k)
+        out["f_col_spread_hz"] = max(f_k) - min(f_k)
+        out["e_tot_lo_j"] = e.min(axis=0)
+        out["e_tot_hi_j"] = e.max(axis=0)
+        out["yield_spread_pct"] = ys.max(axis=0) - ys.min(axis=0)
+        out["extrapolated"] = True
+        return out
+
+
+def _check_scalar(name, value, unit=""):
+    """Raise PredictInputError unless ``value`` is a finite number > 0 (``name`` in the message)."""
     try:
         v = float(value)
     except (TypeError, ValueError):
         raise PredictInputError(f"{name} must be a number, got {value!r}") from None
     if not np.isfinite(v) or v <= 0:
-        raise PredictInputError(f"{name} must be finite and > 0, got {value!r}")
+        raise PredictInputError(f"{name} must be finite and > 0{' [' + unit + ']' if unit else ''}"
+                                f", got {v:g}")
+
+
+def _check_times(name, time_min) -> np.ndarray:
+    """Milling times as a 1-D array; PredictInputError unless finite, >= 0 and in order."""
+    try:
+        t = np.atleast_1d(np.asarray(time_min, dtype=float))
+    except (TypeError, ValueError):
+        raise PredictInputError(f"{name} must be one or more numbers, got {time_min!r}") from None
+    if t.ndim != 1 or t.size == 0 or np.any(~np.isfinite(t)):
+        raise PredictInputError(f"{name} must be one or more finite numbers"
+                                + (f", got {t[~np.isfinite(t)][0]:g}"
+                                   if t.ndim == 1 and np.any(~np.isfinite(t)) else ""))
+    if np.any(t < 0):
+        raise PredictInputError(f"{name} must be >= 0, got {t[t < 0][0]:g}")
+    if np.any(np.diff(t) < 0):
+        raise PredictInputError(f"{name} values must be in increasing order")
+    return t
+
+
+@functools.lru_cache(maxsize=1)
+def twin_jar() -> tuple[str, dict]:
+    """The jar the twin simulates by default: (stl_path as the run config names it, its
+    measurements from :func:`geometry.stl_io.check_jar_mesh`, lengths in metres).
+
+    The path and units are the run config's defaults (``yade_scripts/twin_config.py``), so this
+    is the jar the surrogates' training runs used.
+    """
+    from geometry.stl_io import measure_jar
+
+    cfg = config.twin_config.default_config()
+    path = config.twin_config.resolve_stl(cfg, str(config.REPO_ROOT))
+    return cfg["stl_path"], measure_jar(path, cfg["stl_units"])[1]
+
+
+def _check_ball_fits_jar(ball_diameter_m, name="ball_diameter_m"):
+    """PredictInputError when the ball cannot move in the twin's jar (the scene's own rule)."""
+    from geometry.stl_io import ball_fit_error
+
+    stl, info = twin_jar()
+    problem = ball_fit_error(ball_diameter_m, info)
+    if problem:
+        raise PredictInputError(f"{name}: {problem} of {stl}")
+
+
+def domain_error(bundle: sur.SurrogateBundle, frequency_hz: float, ball_diameter_m: float,
+                 jar_volume_m3: float = sur.JAR_VOLUME_M3) -> str | None:
+    """Why a condition lies outside the surrogates' training domain, or None when inside.
+
+    The domain is the bundle's :class:`analysis.surrogate.DomainCheck` on (frequency_hz, bvr):
+    both training ranges and their convex hull. The message names the offending input(s) and
+    the domain as frequency [Hz] and ball diameter [mm] in the bundle's jar (from its BVR range).
+    """
+    b = float(sur.bvr(ball_diameter_m, jar_volume_m3))
+    X = np.array([[float(frequency_hz), b]])
+    in_range, in_hull = bundle.domain.check(X)
+    if in_range[0] and in_hull[0]:
+        return None
+    dom = bundle.domain
+    jar = bundle.jar_volume_m3
+    d_lo, d_hi = ((6.0 * dom.min_[1] * jar / np.pi) ** (1 / 3),
+                  (6.0 * dom.max_[1] * jar / np.pi) ** (1 / 3))
+    ok_f, ok_b = bundle.domain.input_in_range(X)[0]
+    what = []
+    if not ok_f:
+        what.append(f"frequency {float(frequency_hz):g} Hz")
+    if not ok_b:
+        what.append(f"ball {float(ball_diameter_m) * 1e3:g} mm (BVR {b:.4g})")
+    where = (" and ".join(what) + " outside" if what else
+             f"frequency {float(frequency_hz):g} Hz with ball {float(ball_diameter_m) * 1e3:g} "
+             "mm: inside both ranges but outside the convex hull of")
+    return (f"{where} the surrogates' training domain (frequency {dom.min_[0]:g}-"
+            f"{dom.max_[0]:g} Hz, ball {d_lo * 1e3:.3g}-{d_hi * 1e3:.3g} mm in the "
+            f"{jar * 1e6:g} mL jar, BVR {dom.min_[1]:.4g}-{dom.max_[1]:.4g}; trained on "
+            f"{bundle.source})")
 
 
 def load_kinetics(path: Path | None = None, yields: Path | None = None) -> kin.KineticsFit:
@@ -238,13 +393,24 @@ def summarize_comparison(table: pd.DataFrame) -> pd.DataFrame:
 # CLI
 # --------------------------------------------------------------------------------------------
 def _parser():
-    p = argparse.ArgumentParser(prog="python -m analysis.predict",
-                                description="Predict PET yield for a mill condition via the "
-                                            "surrogate and the kinetics fit.")
-    p.add_argument("--frequency-hz", type=float)
-    p.add_argument("--ball-diameter-mm", type=float)
-    p.add_argument("--time-min", type=float, nargs="+")
-    p.add_argument("--jar-volume-ml", type=float, default=25.0)
+    p = argparse.ArgumentParser(
+        prog="python -m analysis.predict",
+        description="Predict PET yield for a mill condition via the surrogate and the kinetics "
+                    "fit. Conditions outside the surrogates' training domain are refused unless "
+                    "--extrapolate is given.",
+        epilog="example: python -m analysis.predict --frequency-hz 27.5 --ball-diameter-mm 20 "
+               "--time-min 5 15 30")
+    p.add_argument("--frequency-hz", type=float, help="jar frequency [Hz], > 0")
+    p.add_argument("--ball-diameter-mm", type=float,
+                   help="ball diameter [mm], > 0 and smaller than the jar's inner diameter")
+    p.add_argument("--time-min", type=float, nargs="+",
+                   help="milling time(s) [min], >= 0, in increasing order")
+    p.add_argument("--jar-volume-ml", type=float, default=25.0,
+                   help="jar volume [mL] (BVR = ball volume / jar volume; default %(default)s)")
+    p.add_argument("--extrapolate", action="store_true",
+                   help="answer outside the surrogates' training domain too: marked "
+                        "EXTRAPOLATED, with bands widened to the union of the lr, rf and gp "
+                        "surrogates' bands (needs a bundle holding all three)")
     p.add_argument("--model", choices=sur.KINDS, default="lr")
     p.add_argument("--surrogate", type=Path, default=None, help="surrogate bundle (.joblib)")
     p.add_argument("--kinetics", type=Path, default=None, help="kinetics_fit.json")
@@ -255,7 +421,8 @@ def _parser():
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--compare", action="store_true",
                    help="Table 6 / Figure 14: surrogate-based vs twin-based yields")
-    p.add_argument("--out", type=Path, default=COMPARE_DIR)
+    p.add_argument("--out", type=Path, default=COMPARE_DIR,
+                   help="folder for --compare's tables and figure (default %(default)s)")
     return p
 
 
@@ -321,26 +488,55 @@ def main(argv=None) -> int:
                    if getattr(args, n) is None]
         if missing:
             raise PredictInputError("missing " + ", ".join("--" + m.replace("_", "-") for m in missing))
+        # impossible inputs are refused before anything is loaded, named as the user typed them
+        _check_scalar("--frequency-hz", args.frequency_hz, "Hz")
+        _check_scalar("--ball-diameter-mm", args.ball_diameter_mm, "mm")
+        _check_scalar("--jar-volume-ml", args.jar_volume_ml, "mL")
+        _check_times("--time-min", args.time_min)
+        _check_ball_fits_jar(args.ball_diameter_mm * 1e-3, "--ball-diameter-mm")
+        f_hz, d_m = args.frequency_hz, args.ball_diameter_mm * 1e-3
+        jar_m3 = args.jar_volume_ml * 1e-6
         pred = load_predictor(args.model, args.surrogate, args.kinetics, args.twin_table, args.yields)
-        out = pred.query(args.frequency_hz, args.ball_diameter_mm * 1e-3, args.time_min,
-                         args.jar_volume_ml * 1e-6)
+        outside = domain_error(pred.surrogate, f_hz, d_m, jar_m3)
+        if outside is not None and not args.extrapolate:
+            raise PredictInputError(outside + "; pass --extrapolate for an answer whose band is "
+                                    "widened by the lr/rf/gp disagreement")
+        if outside is None:
+            out = pred.query(f_hz, d_m, args.time_min, jar_m3)
+        else:
+            out = pred.query_extrapolated(f_hz, d_m, args.time_min, jar_m3)
     except (PredictInputError, kin.KineticsInputError, sur.SurrogateInputError, ValueError,
             FileNotFoundError) as exc:
-        print(f"predict: error: {exc}", file=sys.stderr)
+        print(f"analysis.predict: error: {exc}", file=sys.stderr)
         return 2
     sources = {"surrogate": f"{args.model}: {pred.surrogate.source}", "kinetics": pred.kinetics.source}
+    extrapolation = None
+    if outside is not None:
+        extrapolation = (f"EXTRAPOLATED: {outside}; yield bands = union of the "
+                         f"{', '.join(EXTRAPOLATION_KINDS)} surrogates' bands")
+        print("analysis.predict: warning: answer EXTRAPOLATED outside the surrogates' training "
+              "domain; its bands span the lr, rf and gp surrogates", file=sys.stderr)
     if args.json:
-        print(json.dumps({"sources": sources, "rows": json.loads(out.to_json(orient="records"))},
-                         indent=1))
+        doc = {"sources": sources, "rows": json.loads(out.to_json(orient="records"))}
+        if extrapolation is not None:
+            doc = {"EXTRAPOLATED": True, "extrapolation": extrapolation, **doc}
+        print(json.dumps(doc, indent=1))
     else:
         r = out.iloc[0]
         print(f"f = {r['frequency_hz']:g} Hz, d = {r['ball_diameter_m'] * 1e3:g} mm, "
               f"jar {r['jar_volume_m3'] * 1e6:g} mL, BVR = {r['bvr']:.4f}"
-              + ("   ** OUT OF SURROGATE DOMAIN **" if r["out_of_domain"] else ""))
+              + ("   ** EXTRAPOLATED **" if extrapolation is not None
+                 else "   ** OUT OF SURROGATE DOMAIN **" if r["out_of_domain"] else ""))
         print(f"v_mean = {r['v_mean_m_s']:.3f} m/s, f_col = {r['f_col_hz']:.2f} Hz, "
               f"E_kin = {r['e_kin_j'] * 1e3:.2f} mJ")
+        if extrapolation is not None:
+            print(extrapolation)
+            print(f"surrogate spread ({'/'.join(EXTRAPOLATION_KINDS)}): v_mean "
+                  f"{r['v_mean_spread_m_s']:.3f} m/s, f_col {r['f_col_spread_hz']:.2f} Hz")
         cols = ["time_min", "e_tot_j", "yield_pct", "ci_lo", "ci_hi", "pi_lo", "pi_hi", "regime",
                 "regime_uncertain"]
+        if extrapolation is not None:
+            cols.insert(3, "yield_spread_pct")
         print(out[cols].to_string(index=False, float_format=lambda v: f"{v:.1f}"))
         print(f"sources: surrogate = {sources['surrogate']}; kinetics = {sources['kinetics']}")
     return 0

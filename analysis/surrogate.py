@@ -87,9 +87,14 @@ def bvr(ball_diameter_m, jar_volume_m3: float = JAR_VOLUME_M3):
     """Ball-to-reactor volume ratio (one ball) [-]."""
     if not (np.isfinite(jar_volume_m3) and jar_volume_m3 > 0):
         raise SurrogateInputError(f"jar_volume_m3 must be > 0, got {jar_volume_m3!r}")
-    out = ball_volume_m3(ball_diameter_m) / jar_volume_m3
+    vol = ball_volume_m3(ball_diameter_m)
+    out = vol / jar_volume_m3
     if np.any(out >= 1):
-        raise SurrogateInputError("ball volume exceeds the jar volume")
+        i = int(np.flatnonzero(np.atleast_1d(out) >= 1)[0])
+        raise SurrogateInputError(
+            "ball volume (%.3g mL for a %.4g mm ball) exceeds the jar volume (%.3g mL)"
+            % (np.atleast_1d(vol)[i] * 1e6, np.atleast_1d(ball_diameter_m)[i] * 1e3,
+               jar_volume_m3 * 1e6))
     return out
 
 
@@ -284,12 +289,20 @@ def targets(df: pd.DataFrame) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # estimators
 # --------------------------------------------------------------------------------------------
+#: Smallest tolerance of :class:`DomainCheck`, as a fraction of each input's range. Twin tables
+#: store their inputs as CSV with 6 significant digits (a BVR of 0.18308817 is read back as
+#: 0.183088), so a training point recomputed from its ball diameter may sit just beyond the
+#: stored extreme; 1e-5 of the range (1e-4 Hz in frequency, ~1e-6 in BVR) absorbs that.
+DOMAIN_MIN_REL_TOL = 1e-5
+
+
 class DomainCheck(BaseEstimator):
     """Training-domain check: per-input range (with relative tolerance) and convex hull.
 
     Parameters
     ----------
-    rel_tol : float - tolerance on each input range, as a fraction of the range
+    rel_tol : float - tolerance on each input range, as a fraction of the range (never below
+        :data:`DOMAIN_MIN_REL_TOL`, also for bundles saved with a smaller one)
 
     Attributes
     ----------
@@ -313,14 +326,24 @@ class DomainCheck(BaseEstimator):
             self.hull_ = None
         return self
 
+    def input_in_range(self, X):
+        """Per row and input: inside that input's training range (with the tolerance)?
+
+        Returns
+        -------
+        ndarray of bool, shape (n, d)
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        tol = max(self.rel_tol, DOMAIN_MIN_REL_TOL) * self.scale_
+        return (X >= self.min_ - tol) & (X <= self.max_ + tol)
+
     def check(self, X):
         """numpy core of :meth:`flags`: (in_range, in_hull), boolean arrays of shape (n,)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        tol = self.rel_tol * self.scale_
-        in_range = np.all((X >= self.min_ - tol) & (X <= self.max_ + tol), axis=1)
+        in_range = np.all(self.input_in_range(X), axis=1)
         if self.hull_ is not None:
             Z = (X - self.min_) / self.scale_
-            in_hull = self.hull_.find_simplex(Z, tol=max(self.rel_tol, 1e-9)) >= 0
+            in_hull = self.hull_.find_simplex(Z, tol=max(self.rel_tol, DOMAIN_MIN_REL_TOL)) >= 0
         else:
             in_hull = in_range
         return in_range, in_hull

@@ -65,6 +65,27 @@ class BallNotFoundError(TrackingError):
     """The detector never found the ball."""
 
 
+class FpsMismatchError(TrackingError):
+    """A given frame rate disagrees with the one the video file declares.
+
+    Attributes
+    ----------
+    given_fps, declared_fps : float - the two frame rates [1/s]
+    declared_by : str - 'the sidecar <name>' or 'the video container'
+    """
+
+    def __init__(self, message, given_fps, declared_fps, declared_by):
+        super().__init__(message)
+        self.given_fps = given_fps
+        self.declared_fps = declared_fps
+        self.declared_by = declared_by
+
+
+#: Largest relative difference between a given frame rate and the one the file declares
+#: (:func:`declared_fps`) that is accepted without ``force_fps``.
+FPS_TOLERANCE = 0.01
+
+
 def _cv2():
     import cv2
     return cv2
@@ -867,15 +888,18 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
 
 def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None = None,
                 m_per_px: float | None = None, settings: TrackerSettings | None = None,
-                jar: bool = False, jar_band_rows=None) -> TrackResult:
+                jar: bool = False, jar_band_rows=None, force_fps: bool = False) -> TrackResult:
     """Track the ball in a video file. ``fps`` defaults to a ``<stem>.json`` sidecar's (or a
     ``video.json`` beside the video, as in a measurement dataset), then to the container's
-    (OpenCV), and must be > 0. Scale as in :func:`track_frames`; the sidecar's m_per_px /
+    (OpenCV), and must be > 0. A given ``fps`` more than :data:`FPS_TOLERANCE` away from the
+    rate the file declares (:func:`declared_fps`) raises :class:`FpsMismatchError` before any
+    frame is tracked, unless ``force_fps`` (then ``params['fps_forced']`` records both rates).
+    Scale as in :func:`track_frames`; the sidecar's m_per_px /
     ball_diameter_m are used when both arguments are None; its ball_diameter_px sets the
     expected size. With ``jar`` (a lab-frame video) the jar is followed too (:func:`track_jar`,
     band ``jar_band_rows`` or found): column ``jar_x_m``, which :mod:`analysis.flights` needs
     for the impact observables; ``params['jar']`` holds its band and walls."""
-    res = _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings)
+    res = _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings, force_fps)
     if jar:
         x, info = track_jar_video(path, res.m_per_px, band=jar_band_rows)
         if len(x) != len(res.track):
@@ -886,35 +910,124 @@ def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None
     return res
 
 
-def _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings) -> TrackResult:
+def _sidecar(path: Path):
+    """The video's sidecar and its contents: ``<stem>.json``, else a measurement dataset's
+    ``videos/video.json`` (DESIGN.md) beside it; (None, {}) when there is none."""
     import json
-    path = Path(path)
     side = path.with_name(path.stem + ".json")
-    if not side.is_file():  # a measurement dataset's videos/video.json (DESIGN.md)
+    if not side.is_file():
         side = path.with_name("video.json")
-    meta = {}
-    if side.is_file():
+    if not side.is_file():
+        return None, {}
+    try:
+        meta = json.loads(side.read_text())
+    except json.JSONDecodeError as exc:
+        raise TrackingError(f"{side}: not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise TrackingError(f"{side}: not a JSON object")
+    return side, meta
+
+
+def _declared_fps(side, meta: dict, cap):
+    """(fps, declared_by) of an open video: the sidecar's fps when it has one (the recording
+    rate), else the container's (OpenCV's CAP_PROP_FPS); (None, '') when the sidecar has none
+    and the container's is not > 0. A sidecar fps that is not a finite number > 0 is an error."""
+    if meta.get("fps") is not None:
         try:
-            meta = json.loads(side.read_text())
-        except json.JSONDecodeError as exc:
-            raise TrackingError(f"{side}: not valid JSON ({exc})") from None
+            v = float(meta["fps"])
+        except (TypeError, ValueError):
+            v = float("nan")
+        if not (v > 0 and math.isfinite(v)):
+            raise TrackingError(f"{side}: fps must be a finite number > 0 [1/s], got "
+                                f"{meta['fps']!r}")
+        return v, f"the sidecar {side.name}"
+    v = float(cap.get(_cv2().CAP_PROP_FPS) or 0.0)
+    if v > 0 and math.isfinite(v):
+        return v, "the video container"
+    return None, ""
+
+
+def declared_fps(path):
+    """The frame rate a video file declares [1/s] and who declares it.
+
+    The sidecar (``<stem>.json``, else ``video.json`` beside the video) wins over the container:
+    it records the camera's rate, while a high-speed camera's file may hold a playback rate.
+
+    Returns
+    -------
+    (fps, declared_by) : (float, str) or (None, '') when the file declares no rate > 0
+    """
+    path = Path(path)
+    side, meta = _sidecar(path)
     cap = open_video(path)
-    if fps is None:
-        fps = meta.get("fps") or cap.get(_cv2().CAP_PROP_FPS)
-    if not (fps and fps > 0):
+    try:
+        return _declared_fps(side, meta, cap)
+    finally:
         cap.release()
-        raise TrackingError(f"{path}: fps must be > 0, got {fps}")
+
+
+def _fps_mismatch(path, given_fps: float, declared: float | None, declared_by: str):
+    """FpsMismatchError when ``given_fps`` is more than FPS_TOLERANCE from ``declared``."""
+    if declared is None or abs(given_fps / declared - 1.0) <= FPS_TOLERANCE:
+        return None
+    return FpsMismatchError(
+        f"{path}: fps {given_fps:g} disagrees with {declared:g} fps declared by {declared_by} "
+        f"({100 * abs(given_fps / declared - 1):.1f} % apart, more than "
+        f"{100 * FPS_TOLERANCE:g} %)", given_fps, declared, declared_by)
+
+
+def check_fps(path, fps: float):
+    """Compare a given frame rate [1/s] with the one the file declares (:func:`declared_fps`).
+
+    Returns
+    -------
+    FpsMismatchError or None - the mismatch (not raised), or None when they agree within
+        :data:`FPS_TOLERANCE` or the file declares no rate
+    """
+    return _fps_mismatch(path, float(fps), *declared_fps(path))
+
+
+def _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings,
+                      force_fps=False) -> TrackResult:
+    path = Path(path)
+    side, meta = _sidecar(path)
+    cap = open_video(path)
+    given = fps is not None
+    if fps is None:
+        try:
+            fps = _declared_fps(side, meta, cap)[0]
+        except TrackingError:
+            cap.release()
+            raise
+    if not (fps and fps > 0 and math.isfinite(fps)):
+        cap.release()
+        raise TrackingError(f"{path}: fps must be a finite number > 0 [1/s], got {fps}")
+    mismatch = None
+    if given:
+        try:
+            mismatch = _fps_mismatch(path, float(fps), *_declared_fps(side, meta, cap))
+        except TrackingError:
+            cap.release()
+            raise
+        if mismatch is not None and not force_fps:
+            cap.release()
+            raise mismatch
     if m_per_px is None and ball_diameter_m is None:  # explicit arguments win as a pair
         m_per_px = meta.get("m_per_px")
         ball_diameter_m = meta.get("ball_diameter_m")
     r_hint = meta.get("ball_diameter_px")
     try:
-        return track_frames(decode_ahead(cap), float(fps),
-                            ball_radius_px=None if r_hint is None else 0.5 * float(r_hint),
-                            ball_diameter_m=ball_diameter_m, m_per_px=m_per_px,
-                            settings=settings, source=str(path))
+        res = track_frames(decode_ahead(cap), float(fps),
+                           ball_radius_px=None if r_hint is None else 0.5 * float(r_hint),
+                           ball_diameter_m=ball_diameter_m, m_per_px=m_per_px,
+                           settings=settings, source=str(path))
     finally:
         cap.release()
+    if mismatch is not None:
+        res.params["fps_forced"] = {"given_fps": mismatch.given_fps,
+                                    "declared_fps": mismatch.declared_fps,
+                                    "declared_by": mismatch.declared_by}
+    return res
 
 
 def decode_ahead(cap, batch: int = 32, depth: int = 3):
@@ -1122,36 +1235,54 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m analysis.tracking",
                                 description="Track one ball in a high-speed video -> track CSV "
                                             "(t_s, x_m, y_m, quality, x_px, y_px, r_px "
-                                            "[, jar_x_m]).")
+                                            "[, jar_x_m]).",
+                                epilog="example: python -m analysis.tracking film.mkv --fps 2134 "
+                                       "--ball-diameter-mm 20.6 --out track.csv")
     p.add_argument("video")
-    p.add_argument("--fps", type=float, default=None, help="frame rate (default: sidecar/video)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate [1/s] (default: the sidecar's, else the container's); "
+                        f"refused when more than {100 * FPS_TOLERANCE:g} %% from the rate the "
+                        "file declares, unless --force-fps")
+    p.add_argument("--force-fps", action="store_true",
+                   help="track at --fps even when the file declares another rate (warns)")
     p.add_argument("--ball-diameter-mm", type=float, default=None,
-                   help="real ball diameter; the scale comes from its size in pixels")
-    p.add_argument("--m-per-px", type=float, default=None, help="scale, overrides the ball size")
+                   help="real ball diameter [mm]; the scale comes from its size in pixels")
+    p.add_argument("--m-per-px", type=float, default=None,
+                   help="scale [m/px], overrides the ball size")
     p.add_argument("--rim-method", choices=RIM_METHODS, default=TrackerSettings.rim_method,
                    help="sub-pixel rim points: 'band' (default, fast), 'crossings' (scan of the "
                         "whole window, the earlier default), 'contour' (OpenCV contours)")
     p.add_argument("--mosse-every", type=int, default=TrackerSettings.mosse_every,
-                   help="update MOSSE on every this-many-th frame (default %(default)s)")
+                   help="update MOSSE on every this-many-th frame [frames] (default %(default)s)")
     p.add_argument("--jar", action="store_true",
                    help="also follow the jar by its end walls (lab-frame video): column jar_x_m, "
                         "for the impact observables (python -m analysis.flights)")
     p.add_argument("--jar-band", type=int, nargs=2, metavar=("ROW0", "ROW1"), default=None,
-                   help="image rows where the jar's end walls are followed (default: found, "
-                        "just inside the jar's bottom wall)")
+                   help="image rows [px] where the jar's end walls are followed (default: "
+                        "found, just inside the jar's bottom wall)")
     p.add_argument("--out", required=True, help="track CSV to write")
     a = p.parse_args(argv)
     try:
+        if a.fps is not None and a.force_fps and math.isfinite(a.fps) and a.fps > 0:
+            forced = check_fps(a.video, a.fps)
+            if forced is not None:
+                print(f"analysis.tracking: warning: {forced}; tracking at {a.fps:g} fps as "
+                      "--force-fps asks", file=sys.stderr)
         res = track_video(a.video, a.fps,
                           ball_diameter_m=None if a.ball_diameter_mm is None
                           else a.ball_diameter_mm * 1e-3, m_per_px=a.m_per_px,
                           settings=TrackerSettings(rim_method=a.rim_method,
                                                    mosse_every=a.mosse_every),
                           jar=a.jar or a.jar_band is not None,
-                          jar_band_rows=None if a.jar_band is None else tuple(a.jar_band))
+                          jar_band_rows=None if a.jar_band is None else tuple(a.jar_band),
+                          force_fps=a.force_fps)
         write_track(res.track, a.out)
+    except FpsMismatchError as exc:
+        print(f"analysis.tracking: error: {exc}; leave out --fps to use {exc.declared_fps:g}, "
+              f"or add --force-fps to track at {exc.given_fps:g} anyway", file=sys.stderr)
+        return 2
     except (TrackingError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"analysis.tracking: error: {exc}", file=sys.stderr)
         return 2
     print(f"{a.out}: {res.n_frames} frames, {res.n_lost} lost, {res.n_reacquired} reacquired, "
           f"scale {res.m_per_px * 1e3:.5f} mm/px ({res.scale_source}, ball "

@@ -14,6 +14,7 @@ Usage::
     python -m analysis.twin --frequency-hz 25 --ball-diameter-mm 20.6 [--set key=value ...]
 """
 import argparse
+import functools
 import json
 import os
 import shutil
@@ -80,6 +81,46 @@ def is_complete(run_dir):
     return (Path(run_dir) / "meta.json").is_file()
 
 
+@functools.lru_cache(maxsize=8)
+def _jar_info(path, units, mtime_ns, size):
+    """Measured jar of one STL file version (cached by path, units, mtime and size)."""
+    from geometry.stl_io import measure_jar
+
+    return measure_jar(path, units)[1]
+
+
+def check_ball_fits_jar(cfg):
+    """Check, without YADE, that the config's ball can move in the config's jar.
+
+    Reads the jar STL named by ``cfg['stl_path']`` (relative to the repository root) and applies
+    the scene's own rule (:func:`geometry.stl_io.ball_fit_error`, the one yade_scripts/mill.py
+    enforces), so an impossible ball is refused before a YADE process starts.
+
+    Parameters
+    ----------
+    cfg : dict - a complete run config (:func:`twin_config.complete_config`)
+
+    Raises
+    ------
+    twin_config.ConfigError - the STL cannot be read or measured, or the ball does not fit
+    """
+    from geometry.stl_io import MeshError, ball_fit_error
+
+    path = twin_config.resolve_stl(cfg, str(REPO_ROOT))
+    try:
+        st = os.stat(path)
+        info = _jar_info(path, cfg["stl_units"], st.st_mtime_ns, st.st_size)
+    except OSError as exc:
+        raise twin_config.ConfigError("stl_path %r: cannot read the jar mesh (%s)"
+                                      % (cfg["stl_path"], exc.strerror or exc))
+    except MeshError as exc:
+        raise twin_config.ConfigError("stl_path %r: %s" % (cfg["stl_path"], exc))
+    problem = ball_fit_error(cfg["ball_diameter_m"], info)
+    if problem:
+        raise twin_config.ConfigError("ball_diameter_m = %g m does not fit the jar %s: %s"
+                                      % (cfg["ball_diameter_m"], cfg["stl_path"], problem))
+
+
 def run_twin(config, runs_dir=None, force=False, timeout_s=None):
     """Run the twin for one config (cached by run id) and return its run folder.
 
@@ -96,13 +137,15 @@ def run_twin(config, runs_dir=None, force=False, timeout_s=None):
 
     Raises
     ------
-    twin_config.ConfigError - the config is invalid (checked before YADE starts)
+    twin_config.ConfigError - the config is invalid or its ball does not fit its jar (both
+        checked before YADE starts)
     TwinRunError - YADE exited non-zero; the message holds its error line
     """
     cfg = twin_config.complete_config(dict(config))
     out = run_dir_for(cfg, runs_dir)
     if is_complete(out) and not force:
         return out
+    check_ball_fits_jar(cfg)
     out.parent.mkdir(parents=True, exist_ok=True)
     exe = yade_executable()
     with tempfile.TemporaryDirectory(prefix="twin-cfg-") as tmp:
@@ -167,14 +210,17 @@ def _parse_set(items):
 
 def main(argv=None):
     p = argparse.ArgumentParser(
+        prog="python -m analysis.twin",
         description="Run the MM400 twin once (cached by run id).",
         epilog="example: python -m analysis.twin --frequency-hz 30 --ball-diameter-mm 17.5 "
         "--set restitution=0.35 amplitude_m=0.0127")
     p.add_argument("--frequency-hz", type=float, default=25.0, help="jar frequency [Hz]")
     p.add_argument("--ball-diameter-mm", type=float, default=20.6, help="ball diameter [mm]")
     p.add_argument("--set", nargs="*", action="extend", metavar="KEY=VALUE",
-                   help="other run-config keys (yade_scripts/twin_config.py, SI units); "
-                   "frequency_hz and ball_diameter_m here override the options above")
+                   help="other run-config keys (yade_scripts/twin_config.py, SI units as in "
+                   "their names); frequency_hz and ball_diameter_m here override the options "
+                   "above. Every value is checked against the bounds declared there, and the "
+                   "ball against the jar mesh, before YADE starts")
     p.add_argument("--force", action="store_true", help="rerun even if cached")
     a = p.parse_args(argv)
     try:
@@ -182,7 +228,7 @@ def main(argv=None):
         f = extra.pop("frequency_hz", a.frequency_hz)
         d = extra.pop("ball_diameter_m", a.ball_diameter_mm * 1e-3)
         cfg = condition_config(f, d, **extra)
-        twin_config.complete_config(dict(cfg))
+        check_ball_fits_jar(twin_config.complete_config(dict(cfg)))
         run = run_twin(cfg, force=a.force)
         rec = load_recording(run)
     except (twin_config.ConfigError, TwinRunError, TypeError, ValueError) as exc:

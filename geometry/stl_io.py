@@ -180,3 +180,49 @@ def check_jar_mesh(triangles, scale=1.0):
         "n_facets": int(len(t)),
         "centre_m": [float(c) for c in centre],
     }
+
+
+def measure_jar(path, units="auto"):
+    """Read a jar STL and measure it: :func:`check_jar_mesh` of the file at ``path``.
+
+    Parameters
+    ----------
+    path : str - STL file
+    units : str - 'm', 'mm' or 'auto' (see :func:`scale_for_units`)
+
+    Returns
+    -------
+    (triangles, info, scale) : triangles in file units, the dict of :func:`check_jar_mesh`
+        (lengths in metres) and the metres per file unit
+
+    Raises
+    ------
+    MeshError
+        the file cannot be read or is not a closed, inward-oriented, axis-centred cavity.
+    """
+    tri = read_stl(path)
+    scale = scale_for_units(tri, units)
+    return tri, check_jar_mesh(tri, scale), scale
+
+
+def ball_fit_error(ball_diameter_m, info):
+    """Why a ball of this diameter cannot move in a jar, or None when it fits.
+
+    The ball must be smaller than the cavity's narrowest diameter in the middle third of its
+    length (``2 * info['min_radius_mid_m']``) and shorter than its inner length
+    (``info['inner_length_m']``); ``info`` is the dict of :func:`check_jar_mesh` [m].
+
+    Returns
+    -------
+    str or None - one sentence naming both sizes in mm, or None
+    """
+    d = float(ball_diameter_m)
+    bore = 2.0 * info["min_radius_mid_m"]
+    if d >= bore:
+        return ("ball (%.2f mm) is %s the jar's inner diameter (%.2f mm)"
+                % (d * 1e3, "larger than" if d > bore * (1 + 1e-6) else "as large as",
+                   bore * 1e3))
+    if d >= info["inner_length_m"]:
+        return ("ball (%.2f mm) is longer than the jar's inner length (%.2f mm)"
+                % (d * 1e3, info["inner_length_m"] * 1e3))
+    return None

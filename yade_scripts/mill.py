@@ -57,7 +57,8 @@ import numpy as np  # noqa: E402
 import twin_config  # noqa: E402
 from twin_config import ConfigError  # noqa: E402
 from twin_modes import classify_motion  # noqa: E402
-from geometry.stl_io import MeshError, check_jar_mesh, read_stl, scale_for_units  # noqa: E402
+from geometry.stl_io import (MeshError, ball_fit_error, check_jar_mesh, read_stl,  # noqa: E402
+                             scale_for_units)
 from effects import load_effects  # noqa: E402
 
 from yade import O, utils  # noqa: E402
@@ -114,13 +115,9 @@ def load_jar(cfg):
     info = check_jar_mesh(tri, scale)
     info["stl_path"] = os.path.relpath(path, ROOT) if path.startswith(ROOT) else path
     info["metres_per_unit"] = scale
-    d = cfg["ball_diameter_m"]
-    if d >= 2 * info["min_radius_mid_m"]:
-        raise ConfigError("ball (%.2f mm) is larger than the jar's inner diameter (%.2f mm)"
-                          % (d * 1e3, 2e3 * info["min_radius_mid_m"]))
-    if d >= info["inner_length_m"]:
-        raise ConfigError("ball (%.2f mm) is longer than the jar's inner length (%.2f mm)"
-                          % (d * 1e3, info["inner_length_m"] * 1e3))
+    problem = ball_fit_error(cfg["ball_diameter_m"], info)
+    if problem:
+        raise ConfigError(problem)
     return tri * scale, info
 
 
