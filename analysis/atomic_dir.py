@@ -12,6 +12,11 @@ wrote itself. It refuses, before anything is written,
   holding it;
 * an existing, non-empty folder that carries no mark (:data:`MARKER`) of an earlier output of
   this project and does not sit in ``results/``.
+
+A stage that writes one FILE (a movie, say) follows the same rule through
+:func:`check_out_file`: the same places are refused, and an existing file is replaced only when
+the stage recognises it as its own earlier output (the stage says how, e.g. from a sidecar it
+wrote beside the file holding the file's hash).
 """
 import os
 import shutil
@@ -36,7 +41,7 @@ def _within(a: Path, b: Path) -> bool:
     return a == b or b in a.parents
 
 
-def check_out_dir(out_dir, protected=(), area="results"):
+def check_out_dir(out_dir, protected=(), area="results", flag="--out"):
     """Raise :class:`OutputError` when ``out_dir`` is not a folder this project may (re)write.
 
     Parameters
@@ -46,6 +51,7 @@ def check_out_dir(out_dir, protected=(), area="results"):
     area : {'results', 'datasets'} - where in the repository this kind of output lives:
         ``results/<name>`` or, for a written measurement dataset, also ``data/measurements/<name>``
         (an existing dataset folder is replaced only when it carries the mark)
+    flag : str - the command-line option that named the folder, for the messages
 
     Returns
     -------
@@ -55,11 +61,11 @@ def check_out_dir(out_dir, protected=(), area="results"):
     repo, results, runs = _repo_paths()
     cwd = Path.cwd().resolve()
     if _within(cwd, out):
-        raise OutputError("--out %s is the current directory or holds it; give a new folder, "
-                          "e.g. results/<name>" % out_dir)
+        raise OutputError("%s %s is the current directory or holds it; give a new folder, "
+                          "e.g. results/<name>" % (flag, out_dir))
     if _within(repo, out):
-        raise OutputError("--out %s is the repository or holds it; give a new folder, e.g. "
-                          "results/<name>" % out_dir)
+        raise OutputError("%s %s is the repository or holds it; give a new folder, e.g. "
+                          "results/<name>" % (flag, out_dir))
     if area == "datasets":
         from analysis.config import MEASUREMENTS_DIR
         homes = [Path(MEASUREMENTS_DIR).resolve(), results]
@@ -69,37 +75,38 @@ def check_out_dir(out_dir, protected=(), area="results"):
         raise ValueError("area must be 'results' or 'datasets', got %r" % (area,))
     if _within(out, repo) and not any(_within(out, h) and out != h for h in homes):
         where = " or ".join("%s/<name>" % h.relative_to(repo) for h in homes)
-        raise OutputError("--out %s lies in the repository outside %s; give %s or a folder "
-                          "outside the repository" % (out_dir, where, where))
+        raise OutputError("%s %s lies in the repository outside %s; give %s or a folder "
+                          "outside the repository" % (flag, out_dir, where, where))
     if _within(out, runs) or _within(runs, out):
-        raise OutputError("--out %s is (or holds) the twin's run cache results/runs/" % out_dir)
+        raise OutputError("%s %s is (or holds) the twin's run cache results/runs/"
+                          % (flag, out_dir))
     for p in protected or ():
         if p is None:
             continue
         p = Path(p).expanduser().resolve()
         if _within(out, p) or _within(p, out):
-            raise OutputError("--out %s is, holds or lies inside an input (%s): outputs never "
-                              "replace what was read" % (out_dir, p))
+            raise OutputError("%s %s is, holds or lies inside an input (%s): outputs never "
+                              "replace what was read" % (flag, out_dir, p))
     if out.exists():
         if not out.is_dir():
-            raise OutputError("--out %s is a file, not a folder" % out_dir)
+            raise OutputError("%s %s is a file, not a folder" % (flag, out_dir))
         if (any(out.iterdir()) and not (out / MARKER).exists()
                 and not (area == "results" and _within(out, results))):
-            raise OutputError("--out %s already holds files this project did not write; give "
-                              "a new or empty folder" % out_dir)
+            raise OutputError("%s %s already holds files this project did not write; give "
+                              "a new or empty folder" % (flag, out_dir))
     return out
 
 
-def staging_dir(out_dir, protected=(), area="results"):
+def staging_dir(out_dir, protected=(), area="results", flag="--out"):
     """A fresh temporary folder beside ``out_dir`` (same file system, so the swap is a rename),
     after :func:`check_out_dir` has accepted ``out_dir``."""
     out_dir = Path(out_dir)
-    check_out_dir(out_dir, protected, area)
+    check_out_dir(out_dir, protected, area, flag)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
 
 
-def publish_dir(tmp, out_dir, protected=(), area="results"):
+def publish_dir(tmp, out_dir, protected=(), area="results", flag="--out"):
     """Mark the finished folder ``tmp`` and move it onto ``out_dir``, replacing an earlier output.
 
     The old folder is renamed away first, so ``out_dir`` never holds a mix of old and new files.
@@ -107,7 +114,7 @@ def publish_dir(tmp, out_dir, protected=(), area="results"):
     """
     tmp, out_dir = Path(tmp), Path(out_dir)
     try:
-        check_out_dir(out_dir, protected, area)
+        check_out_dir(out_dir, protected, area, flag)
     except OutputError:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -121,3 +128,45 @@ def publish_dir(tmp, out_dir, protected=(), area="results"):
     else:
         os.replace(tmp, out_dir)
     return out_dir
+
+
+def check_out_file(out_file, protected=(), is_own=None, flag="--out"):
+    """Raise :class:`OutputError` when ``out_file`` is not a file this project may (re)write.
+
+    The places refused are those of :func:`check_out_dir`: a path inside the repository outside
+    ``results/``, the run cache ``results/runs/``, a protected input (a file, or anything inside
+    a protected folder); besides, a path that is a folder, and an existing file unless
+    ``is_own(path)`` says the same stage wrote it earlier.
+
+    Parameters
+    ----------
+    out_file : path-like - the file a stage is about to write or replace
+    protected : iterable of path-like - inputs that must stay untouched (files or folders)
+    is_own : callable, optional - ``is_own(resolved_path) -> bool``: True when the existing file
+        is the stage's own earlier output (without it, no existing file is replaced)
+    flag : str - the command-line option that named the file, for the messages
+
+    Returns
+    -------
+    Path - ``out_file`` resolved
+    """
+    out = Path(out_file).expanduser().resolve()
+    repo, results, runs = _repo_paths()
+    if out.is_dir():
+        raise OutputError("%s %s is a folder; give a file name" % (flag, out_file))
+    if _within(out, repo) and not _within(out.parent, results):
+        raise OutputError("%s %s lies in the repository outside results/; give results/<name> "
+                          "or a path outside the repository" % (flag, out_file))
+    if _within(out, runs):
+        raise OutputError("%s %s lies in the twin's run cache results/runs/" % (flag, out_file))
+    for p in protected or ():
+        if p is None:
+            continue
+        p = Path(p).expanduser().resolve()
+        if _within(out, p):
+            raise OutputError("%s %s is or lies inside an input (%s): outputs never replace "
+                              "what was read" % (flag, out_file, p))
+    if (out.exists() or out.is_symlink()) and not (is_own is not None and is_own(out)):
+        raise OutputError("%s %s already exists and is not an earlier output of this command; "
+                          "give a new file name" % (flag, out_file))
+    return out
