@@ -480,8 +480,13 @@ def phase_fold_compare(dataset: Dataset, model_tracks: dict, n_bins: int = 24,
 def markdown_page(cmp: Comparison, dataset: Dataset, figures=()) -> str:
     """A Markdown page: headline, plain-words lines, the table, figures."""
     t = cmp.table
-    out = ["# Twin vs measurements: %s" % dataset.name, "",
-           "Source: %s (velocity frame: %s)." % (dataset.source, dataset.velocity_frame), ""]
+    synth = getattr(dataset, "synthetic", False)
+    out = ["# Twin vs %s: %s" % ("SYNTHETIC data" if synth else "measurements", dataset.name),
+           ""]
+    if synth:
+        out += ["> **SYNTHETIC DATA**: this dataset says it is synthetic (dataset.json "
+                "`\"synthetic\": true`): its 'measured' values were generated, not measured.", ""]
+    out += ["Source: %s (velocity frame: %s)." % (dataset.source, dataset.velocity_frame), ""]
     out += [cmp.summary(), ""]
     if t["measured_sd_default"].any():
         out.append("Measured sd missing for %d row(s): default uncertainty used (see "
@@ -492,7 +497,8 @@ def markdown_page(cmp: Comparison, dataset: Dataset, figures=()) -> str:
     if t.get("one_realisation", pd.Series(False, index=t.index)).any():
         out.append("Impact observables (analysis.flights) come from one measured track each: "
                    "their sigma also holds one twin run's sd; diff % is left out for them.")
-    out += ["", "| condition | observable | measured | model (mean +- se, n) | diff % | z |",
+    out += ["", "| condition | observable | %s | model (mean +- se, n) | diff %% | z |"
+            % ("SYNTHETIC 'measured'" if synth else "measured"),
             "|---|---|---|---|---|---|"]
     for _, r in t.iterrows():
         obs = r["observable"] + ("" if not np.isfinite(r["time_min"]) else
@@ -522,22 +528,22 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
     try:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
         figs = []
-        fig, ax = plt.subplots(figsize=(5.5, 1.2 + 0.35 * cmp.table["condition_id"].nunique()))
-        compare_plots.plot_residual_heatmap(cmp, ax=ax)
+        fig, ax = plt.subplots(figsize=compare_plots.heatmap_figsize(cmp))
+        compare_plots.plot_residual_heatmap(cmp, ax=ax, dataset=dataset)
         fig.tight_layout()
         fig.savefig(tmp / "heatmap.png", dpi=120)
         plt.close(fig)
         figs.append("heatmap.png")
         if cmp.phase is not None:
             fig, ax = plt.subplots(figsize=(6, 4))
-            compare_plots.plot_phase_folded(cmp, ax=ax)
+            compare_plots.plot_phase_folded(cmp, ax=ax, synthetic=dataset.synthetic)
             fig.tight_layout()
             fig.savefig(tmp / "phase.png", dpi=120)
             plt.close(fig)
             figs.append("phase.png")
         if (cmp.table["observable"] == "yield_pct").any():
             fig, ax = plt.subplots(figsize=(6, 4))
-            compare_plots.plot_yield_residuals(cmp, ax=ax)
+            compare_plots.plot_yield_residuals(cmp, ax=ax, synthetic=dataset.synthetic)
             fig.tight_layout()
             fig.savefig(tmp / "yields.png", dpi=120)
             plt.close(fig)

@@ -960,11 +960,12 @@ def _load_model_factory(spec):
 
 
 def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = None,
-                    dataset_name: str = "", protected=()) -> "Path":
+                    dataset_name: str = "", protected=(), synthetic: bool = False) -> "Path":
     """Write diagnosis.csv, structure.csv, diagnosis.md, ranking.png [, staircase.csv,
     before_after.csv, staircase.png] into ``out_dir`` atomically (temp folder, rename); an
     ``out_dir`` that is not ours to replace, or touches a ``protected`` input, is refused
-    (:func:`analysis.atomic_dir.check_out_dir`)."""
+    (:func:`analysis.atomic_dir.check_out_dir`). ``synthetic`` (the dataset's own flag,
+    ``Dataset.synthetic``) marks the page and the figures SYNTHETIC."""
     import shutil
     from pathlib import Path
 
@@ -978,15 +979,21 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
     try:
         diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
         diag.structure.to_csv(tmp / "structure.csv", index=False)
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        compare_plots.plot_effect_ranking(diag, ax=ax)
+        fig, ax = plt.subplots(figsize=compare_plots.ranking_figsize(diag))
+        compare_plots.plot_effect_ranking(diag, ax=ax, dataset_name=dataset_name,
+                                          synthetic=synthetic)
         fig.tight_layout()
         fig.savefig(tmp / "ranking.png", dpi=120)
         plt.close(fig)
         cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength",
                 "strength_se", "footprint", "absorbed_frac", "identifiable", "significant"]
-        md = ["# Which effect is missing? %s" % dataset_name, "", "**Verdict:** %s" % diag.verdict,
-              "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        md = ["# Which effect is missing? %s%s" % (dataset_name,
+                                                   " (SYNTHETIC data)" if synthetic else ""), ""]
+        if synthetic:
+            md += ["> **SYNTHETIC DATA**: the dataset says it is synthetic (dataset.json "
+                   "`\"synthetic\": true`), not measured.", ""]
+        md += ["**Verdict:** %s" % diag.verdict,
+               "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
         for _, r in diag.table.iterrows():
             md.append("| " + " | ".join(("%.3g" % r[c]) if isinstance(r[c], float) else str(r[c])
                                         for c in cols) + " |")
@@ -995,7 +1002,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
             added.staircase.to_csv(tmp / "staircase.csv", index=False)
             added.to_frame().reset_index().to_csv(tmp / "before_after.csv", index=False)
             fig, ax = plt.subplots(figsize=(5, 3.5))
-            compare_plots.plot_chi2_staircase(added.staircase, ax=ax)
+            compare_plots.plot_chi2_staircase(added.staircase, ax=ax, synthetic=synthetic)
             fig.tight_layout()
             fig.savefig(tmp / "staircase.png", dpi=120)
             plt.close(fig)
@@ -1047,7 +1054,8 @@ def main(argv=None):
             kw.pop("noise_observables", None)
             added = add_effect(problem["predict"], obs, problem["base_params"],
                                problem["effects"], name, **kw)
-        write_diagnosis(diag, args.out, added, ds.name, protected=[args.dataset])
+        write_diagnosis(diag, args.out, added, ds.name, protected=[args.dataset],
+                        synthetic=ds.synthetic)
     except (DatasetError, ValueError, KeyError, TypeError) as exc:
         print("error: %s" % exc, file=sys.stderr)
         return 2

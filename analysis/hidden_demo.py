@@ -235,7 +235,7 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
         say("   " + added.summary())
     else:
         say("4/5 nothing to add")
-    write_diagnosis(diag, out_dir / "diagnose", added, ds.name)
+    write_diagnosis(diag, out_dir / "diagnose", added, ds.name, synthetic=ds.synthetic)
     times["compare_diagnose_add_s"] = time.perf_counter() - t0
 
     verify_row = None
@@ -284,10 +284,13 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
     if verify_row:
         stair = pd.concat([stair, pd.DataFrame([verify_row])], ignore_index=True)
     stair.to_csv(out_dir / "staircase.csv", index=False)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    compare_plots.plot_residual_heatmap(cmp0, ax=axes[0])
-    axes[0].set_title("before: calibrated twin, no effect")
-    compare_plots.plot_chi2_staircase(stair, ax=axes[1])
+    w, h = compare_plots.heatmap_figsize(cmp0)
+    fig, axes = plt.subplots(1, 2, figsize=(w + 5.0, max(h, 4.0)),
+                             gridspec_kw={"width_ratios": [w, 5.0]})
+    compare_plots.plot_residual_heatmap(cmp0, ax=axes[0], dataset=ds,
+                                        title="before: calibrated twin, no effect")
+    compare_plots.plot_chi2_staircase(stair, ax=axes[1], title="chi2/dof by stage",
+                                      synthetic=ds.synthetic)
     fig.tight_layout()
     fig.savefig(out_dir / "overview.png", dpi=110)
     plt.close(fig)

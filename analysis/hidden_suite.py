@@ -72,7 +72,7 @@ def score_case(ds_path, truth_path, model_kwargs, alpha=0.01):
     true = [k for k in truth["effects"]]
     true = true[0] if true else None
     tab = diag.table.set_index("effect")
-    row = {"dataset": ds.name, "true_effect": true or "none",
+    row = {"dataset": ds.name, "synthetic": ds.synthetic, "true_effect": true or "none",
            "rank1": diag.table.iloc[0]["effect"], "status": diag.status,
            "reported": diag.best or "", "verdict": diag.verdict,
            "chi2_dof_calibrated": diag.calibrated.chi2_dof,
@@ -240,8 +240,13 @@ def per_effect(rows):
                  chi2_dof_after_add=("chi2_dof_after_add", "median")).reset_index()
 
 
-def write_report(rows, out_dir=SUITE_DIR):
-    """summary.json, per_effect.csv, confusion.png and README.md (the report page)."""
+def write_report(rows, out_dir=SUITE_DIR, synthetic: bool | None = None):
+    """summary.json, per_effect.csv, confusion.png and README.md (the report page).
+
+    ``synthetic``: mark the figure SYNTHETIC; None reads the rows' ``synthetic`` column (each
+    dataset's own flag); rows written before that column existed count as synthetic, since the
+    suite only scores datasets made by :mod:`analysis.hidden`, which are synthetic."""
+    from analysis.plotting.marks import synthetic_title
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -268,7 +273,10 @@ def write_report(rows, out_dir=SUITE_DIR):
                 ax.text(j, i, "%.0f%%" % (100 * M[i, j]), ha="center", va="center", fontsize=7)
     ax.set_xlabel("reported by diagnose")
     ax.set_ylabel("hidden in the data")
-    ax.set_title("Hidden-effect suite: what diagnose reports")
+    if synthetic is None:
+        synthetic = (bool(rows["synthetic"].fillna(True).astype(bool).any())
+                     if "synthetic" in rows else True)
+    ax.set_title(synthetic_title("Hidden-effect suite: what diagnose reports", synthetic))
     fig.tight_layout()
     fig.savefig(out_dir / "confusion.png", dpi=120)
     plt.close(fig)

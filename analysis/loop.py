@@ -607,13 +607,14 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
                     effects={k: {"strength": s, "se": se} for k, (s, se) in res.effects.items()})
         (tmp / "loop.json").write_text(json.dumps(info, indent=1, default=_json))
         fig, ax = plt.subplots(figsize=(5.5, 3.5))
-        compare_plots.plot_chi2_staircase(res.staircase, ax=ax)
+        compare_plots.plot_chi2_staircase(res.staircase, ax=ax,
+                                          synthetic=bool(getattr(dataset, "synthetic", False)))
         fig.tight_layout()
         fig.savefig(tmp / "staircase.png", dpi=120)
         plt.close(fig)
         if res.diagnoses:
-            fig, ax = plt.subplots(figsize=(6, 3.5))
-            compare_plots.plot_effect_ranking(res.diagnoses[0], ax=ax)
+            fig, ax = plt.subplots(figsize=compare_plots.ranking_figsize(res.diagnoses[0]))
+            compare_plots.plot_effect_ranking(res.diagnoses[0], ax=ax, dataset=dataset)
             fig.tight_layout()
             fig.savefig(tmp / "ranking.png", dpi=120)
             plt.close(fig)

@@ -6,6 +6,8 @@ A dataset is what a user brings to compare the twin with (DESIGN.md, "Measuremen
 file                        columns                                                needed
 ==========================  =====================================================  ========
 dataset.json                name, description, source, velocity_frame (lab|jar)    yes
+                            [synthetic: true for generated data, marked SYNTHETIC
+                            on every figure and page made from it]
 conditions.csv              condition_id, frequency_hz, ball_diameter_mm           yes
                             [amplitude_mm, n_balls, fill_g]
 summary.csv                 condition_id, v_mean_m_s, v_mean_sd_m_s, f_col_hz,      yes
@@ -151,6 +153,11 @@ class Dataset:
             if ids:
                 out[col] = ids
         return out
+
+    @property
+    def synthetic(self) -> bool:
+        """True when dataset.json says ``"synthetic": true`` (generated data, not measured)."""
+        return self.meta.get("synthetic", False) is True
 
     def condition_label(self, condition_id) -> str:
         """Plain-words label, e.g. '20.6 mm ball at 22.5 Hz'."""
@@ -307,6 +314,9 @@ def _validate_meta(meta, fname="dataset.json"):
     if meta["velocity_frame"] not in VELOCITY_FRAMES:
         raise DatasetError("%s: velocity_frame must be 'lab' or 'jar', got %r"
                            % (fname, meta["velocity_frame"]))
+    if "synthetic" in meta and not isinstance(meta["synthetic"], bool):
+        raise DatasetError("%s: key 'synthetic' must be true or false, got %r"
+                           % (fname, meta["synthetic"]))
 
 
 def _validate_track(df, fname):

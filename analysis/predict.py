@@ -448,6 +448,7 @@ def _run_compare(args) -> Path:
         summ.to_csv(tmp / "table6_abs_errors.csv", index=False)
         (tmp / "source.json").write_text(json.dumps(
             {"yields": "SYNTHETIC " + ds.name if ds.synthetic else ds.name,
+             "yields_synthetic": bool(ds.synthetic),
              "twin_outputs": str(twin["source"].iloc[0]), "surrogate": bundle.source,
              "kinetics": kfit.source}, indent=1))
         import matplotlib
@@ -459,9 +460,12 @@ def _run_compare(args) -> Path:
                              kinds=list(bundle.models))
         axes[0].set_title("surrogate-MC vs twin-MC yield", fontsize=8)
         sp.plot_yield_parity(table, ax=axes[1], reference="yield_measured_pct",
-                             kinds=["twin"] + list(bundle.models))
-        axes[1].set_title(("SYNTHETIC " if ds.synthetic else "") + "measured vs predicted yield",
-                          fontsize=8)
+                             kinds=["twin"] + list(bundle.models),
+                             reference_label=("SYNTHETIC yield [%] (stands in for measured)"
+                                              if ds.synthetic else "measured yield [%]"),
+                             synthetic=ds.synthetic)
+        axes[1].set_title("SYNTHETIC yields vs predicted yield" if ds.synthetic
+                          else "measured vs predicted yield", fontsize=8)
         fig.suptitle(("SYNTHETIC yields; " if ds.synthetic else "") + "twin outputs: "
                      + str(twin["source"].iloc[0])[:60] + "; surrogate: " + bundle.source[:40],
                      fontsize=7)

@@ -567,14 +567,24 @@ def page_predict(f: StudyFolder):
             t6[c] = num
     f.require()
     ecols = [c for c in t6.columns if c.startswith("abs_err_")]
+    # the yields' own flag as predict wrote it; older source.json files carry only the label,
+    # which predict also wrote from that flag
+    ysyn = src.get("yields_synthetic")
+    if not isinstance(ysyn, bool):
+        ysyn = "SYNTHETIC" in str(src.get("yields", "")).upper()
 
     def label(c):
         a, b = c[len("abs_err_"):-len("_pct")].split("_vs_")
+        if b == "measured" and ysyn:
+            b = "SYNTHETIC yields"
         return f"{a.upper()} vs {b}"
     rows = [[r["condition_id"], fmt(r["frequency_hz"], 1)] + [fmt(r[c], 2) for c in ecols]
             for _, r in t6.iterrows()]
     out = _sources_banner(list(src.values()))
-    out += ["Sources: " + "; ".join(f"{k}: `{v}`" for k, v in src.items()) + ".", "",
+    if ysyn and not out:
+        out = [synthetic_banner("the yields compared with are synthetic, not measured"), ""]
+    out += ["Sources: " + "; ".join(f"{k}: `{v}`" for k, v in src.items()
+                                    if not isinstance(v, bool)) + ".", "",
             "## Mean absolute yield error per condition (paper Table 6) [% yield]", "",
             md_table(["condition", "f [Hz]"] + [label(c) for c in ecols], rows), ""]
     ood = [c for c in yc.columns if c.startswith("out_of_domain")]
@@ -585,7 +595,7 @@ def page_predict(f: StudyFolder):
     out += [x for fig in figs for x in (fig, "")]
     worst = {label(c): t6[c].max() for c in ecols}
     head = ", ".join(f"{k} <= {v:.2f}" for k, v in list(worst.items())[:3]) + " % yield"
-    if any("SYNTHETIC" in str(v).upper() for v in src.values()):
+    if ysyn or any("SYNTHETIC" in str(v).upper() for v in src.values()):
         head += "; SYNTHETIC yields"
     return out, head
 

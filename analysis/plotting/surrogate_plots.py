@@ -53,12 +53,15 @@ def plot_learning_curve(lc: pd.DataFrame, output: str, ax=None):
 
 
 def plot_yield_parity(table: pd.DataFrame, ax=None, reference: str = "yield_twin_pct",
-                      kinds=None):
+                      kinds=None, *, reference_label: str | None = None,
+                      synthetic: bool = False):
     """Figure 14: yields from surrogate outputs vs a reference (twin-output yields or measured).
 
     Parameters
     ----------
     table : DataFrame - with columns ``reference`` and yield_<kind>_pct
+    reference_label : str or None - x-axis label (default: the reference column's name)
+    synthetic : bool - the reference yields are synthetic: SYNTHETIC watermark
     """
     ax = _ax(ax)
     kinds = kinds or [c[len("yield_"):-len("_pct")] for c in table.columns
@@ -69,7 +72,11 @@ def plot_yield_parity(table: pd.DataFrame, ax=None, reference: str = "yield_twin
             continue
         ax.plot(table[reference], table[col], "os^D"[i % 4], ms=4, label=k.upper().replace("_", " "))
     ax.plot([0, 100], [0, 100], "k-", lw=0.8)
-    ax.set_xlabel(reference.replace("_", " "))
+    ax.set_xlabel(reference_label if reference_label is not None
+                  else reference.replace("_", " "))
     ax.set_ylabel("surrogate-based yield [%]")
     ax.legend(fontsize=7)
+    if synthetic:
+        from analysis.plotting.marks import mark_synthetic
+        mark_synthetic(ax)
     return ax
