@@ -358,9 +358,16 @@ class OpenTwinModel(TwinModel):
         self.flight_obs = tuple(FLIGHT_OBSERVABLES)
         cols = self.dem_cols + (list(self.flight_obs) if self.flight_conditions else [])
         key = ["role", "name", "value", "condition_id"]
-        # replicate sd per condition, pooled over every group of >= 2 seeds there
-        var = runs.groupby(key, sort=False)[cols].var()
-        pooled = var.groupby(level="condition_id").mean().reindex(cids)
+        # replicate sd per condition: pooled (weighted by dof) over the groups of >= 2 seeds
+        # of the anchor and the base responses there - not the effect levels, whose strong
+        # effects can make the flight bistable (one jar-compliance level at 28 Hz scattered
+        # v_in by 2.3 m/s and, pooled in, made every impact observable there uninformative)
+        own = runs[runs["role"].isin(["anchor", "base"])]
+        g = own.groupby(key, sort=False)[cols]
+        dof = (g.count() - 1).clip(lower=0)
+        ss = (g.var().fillna(0.0) * dof)
+        pooled = (ss.groupby(level="condition_id").sum()
+                  / dof.groupby(level="condition_id").sum().replace(0, np.nan)).reindex(cids)
         anc = runs[runs["role"] == "anchor"].groupby("condition_id")[cols].mean().reindex(cids)
         if anc[["v_mean_m_s", "f_col_hz"]].isna().any().any():
             raise RuntimeError("the anchor has no usable run at some condition")
@@ -437,7 +444,8 @@ class OpenTwinModel(TwinModel):
                 noise = self.col_sd_[i] * math.sqrt(2.0 / self.base_seeds(p))
                 used = [2 if self.velocity_frame == "jar" else 0, 1] + list(
                     range(3, len(cols)) if cid_has_flights[i] else [])
-                r = pt[1][pt[0] != 0][:, used] / noise[used]
+                with np.errstate(divide="ignore", invalid="ignore"):   # noise-free columns
+                    r = pt[1][pt[0] != 0][:, used] / noise[used]
                 r = r[np.isfinite(r)]
                 T += float(np.sum(r ** 2))
                 n += r.size
@@ -550,17 +558,37 @@ class OpenTwinModel(TwinModel):
                 se[(cid, "v_mean_m_s")] = self.col_sd_[i, 2] / math.sqrt(self.n_rep)
         if theta is None:
             return se
-        var = np.zeros((len(self.conditions), len(self.cols_)))
+        # the prediction is A_R + sum_k w_k (L_k - A_n(k)): the anchor mean of R seeds plus
+        # each response level's mean of n(k) runs minus the anchor's mean over the same first
+        # n(k) seeds (the chaos of 0.5 s decorrelates same-seed runs, so these are noise, not
+        # common numbers). Its variance per unit run variance, beyond the anchor's 1 / R:
+        #   sum_k w_k^2 / n(k) + sum_p,q W_p W_q / max(n_p, n_q) - 2 sum_p W_p / R
+        # (W_p: the summed weights of parameter p's levels); it is below zero where the
+        # levels' own runs replace part of the anchor's noise
+        n = len(self.conditions)
+        sq = np.zeros(n)
+        wsum = [dict() for _ in range(n)]
+        jump = np.zeros((n, len(self.cols_)))
         for i, pt, dx, p in self._base_points(theta, names=True):
             xs = pt[0]
             w = _response(pt, np.eye(len(xs)), dx)               # weight of each point
             w = np.where(xs == 0.0, 0.0, w)                      # the anchor's own: in se
-            var[i] += float(np.sum(w ** 2)) * (2.0 / self.base_seeds(p)) \
-                * self.col_sd_[i] ** 2
-            var[i] += _jump_var(pt, dx)
-        extra = self._series(np.sqrt(var))
-        se = np.sqrt(se ** 2 + extra.reindex(se.index).fillna(0.0) ** 2)
-        return se
+            k = self.base_seeds(p)
+            sq[i] += float(np.sum(w ** 2)) / k
+            wsum[i][k] = wsum[i].get(k, 0.0) + float(np.sum(w))
+            jump[i] += _jump_var(pt, dx)
+        c = sq.copy()
+        for i in range(n):
+            for ka, wa in wsum[i].items():
+                c[i] -= 2.0 * wa / self.n_rep
+                for kb, wb in wsum[i].items():
+                    c[i] += wa * wb / max(ka, kb)
+        unit = self._series(self.col_sd_) ** 2                   # one run's variance per key
+        cond = unit.index.get_level_values(0)
+        ci = pd.Series(c, index=list(self.conditions["condition_id"]))
+        extra = unit * ci.reindex(cond).to_numpy() + self._series(np.sqrt(jump)) ** 2
+        var = se ** 2 + extra.reindex(se.index).fillna(0.0)
+        return np.sqrt(np.maximum(var, 0.0))
 
     def _series(self, sd):
         """A per-key Series from per-(condition, column) sds, propagated to the yields through

@@ -50,13 +50,14 @@ def truth_strengths(truth) -> dict:
 def score(name, loop_info, diagnosis, staircase, truth) -> dict:
     """One summary row: what was hidden, what was found, whether the intervals cover it."""
     true = truth_strengths(truth)
-    sig = diagnosis[diagnosis["significant"].astype(bool)]
+    sig = diagnosis[diagnosis["significant"].astype(bool)].sort_values("rank")
     found = list(sig["effect"])
     row = {"dataset": name, "hidden": "+".join(true) or "none", "found": "+".join(found) or
            "none", "n_hidden": len(true), "status": loop_info.get("status")}
     row["nothing_missing_ok"] = (not true) and not found
     row["all_named"] = bool(true) and all(k in found for k in true)
     row["no_other"] = all(k in true for k in found)
+    row["first_named"] = bool(true) and bool(found) and found[0] in true
     cov = []
     for k, s in true.items():
         r = sig[sig["effect"] == k]
@@ -107,16 +108,23 @@ def goal_lines(summ) -> list:
     eff = summ[summ["n_hidden"] >= 1]
     cov = eff["covered"].dropna()
     last = summ["chi2_dof_last"]
+    from analysis.twin_model import DECOYS
+    decoy = summ["found"].astype(str).apply(lambda f: any(d in f.split("+") for d in DECOYS))
     L = []
-    L.append("no effect hidden -> 'nothing missing': %d / %d" % (null["nothing_missing_ok"].sum(),
-                                                                len(null)))
-    L.append("one effect hidden -> named: %d / %d; no other significant beside it: %d / %d"
-             % (one["all_named"].sum(), len(one), (one["all_named"] & one["no_other"]).sum(),
-                len(one)))
-    L.append("two effects hidden -> both named: %d / %d" % (two["all_named"].sum(), len(two)))
-    L.append("95 %% interval covers the true strength: %d / %d" % (cov.sum(), len(cov)))
-    L.append("chi2/dof after the last add: median %.2f, <= 1.5 in %d / %d"
-             % (last.median(), (last <= 1.5).sum(), len(last)))
+    L.append("no effect hidden -> 'nothing missing': %d / %d (goal >= 95 %% of >= 20)"
+             % (null["nothing_missing_ok"].sum(), len(null)))
+    L.append("one effect hidden -> named first and significant: %d / %d (goal >= 90 %%); no "
+             "other significant beside it: %d / %d (goal >= 80 %%)"
+             % (one["first_named"].sum() if "first_named" in one else one["all_named"].sum(),
+                len(one), (one["all_named"] & one["no_other"]).sum(), len(one)))
+    L.append("two effects hidden -> both named: %d / %d (goal >= 80 %%)"
+             % (two["all_named"].sum(), len(two)))
+    L.append("95 %% interval covers the true strength: %d / %d (goal >= 90 %%)"
+             % (cov.sum(), len(cov)))
+    L.append("chi2/dof after the last add: median %.2f (goal 0.8-1.3), <= 1.5 in %d / %d "
+             "(goal >= 90 %%)" % (last.median(), (last <= 1.5).sum(), len(last)))
+    L.append("a decoy (%s) named: %d / %d (goal never)" % (", ".join(DECOYS), decoy.sum(),
+                                                          len(summ)))
     L.append("twin rerun chi2/dof: median %.2f" % summ["chi2_dof_twin_rerun"].median())
     return L
 
