@@ -57,6 +57,12 @@ BASE_STEPS = {"restitution": 0.06, "amplitude_m": 6e-4, "static_friction": 0.15,
 #: every anchor seed (``replicates``), the others the first ``diff_replicates``
 NOISY_BASE = ("static_friction", "rolling_friction")
 DEFAULT_BASE = ("restitution", "amplitude_m", "static_friction", "rolling_friction")
+#: observables whose base responses are measured and combined in log space (relative
+#: changes that multiply): the ball's transverse rms speed triples from its anchor value when
+#: the rolling friction drops one step and again when the static friction rises one, and the
+#: two together multiply (measured: 0.0065 -> 0.012 and 0.012 alone, 0.023 together), which a
+#: sum of separate changes misses by a third
+LOG_RESPONSE = ("vy_rms_m_s",)
 #: DEM effect levels, as fractions of each candidate's diagnose range
 EFFECT_LEVELS = (0.5, 1.0)
 #: how far beyond its measured response points (in steps) the model may extrapolate linearly
@@ -391,13 +397,22 @@ class OpenTwinModel(TwinModel):
         # same-seed differences from the anchor (common starts)
         anc_by_seed = runs[runs["role"] == "anchor"].set_index(["condition_id", "seed"])[cols]
 
+        self.log_cols_ = np.array([c in LOG_RESPONSE for c in cols])
+
         def diff_means(role, name):
+            """{(value, condition): (mean change from the anchor's same seeds, n)}; for a base
+            parameter the :data:`LOG_RESPONSE` columns change in log (relative) terms."""
             d = runs[(runs["role"] == role) & (runs["name"] == name)]
             out = {}
             for (val, cid), grp in d.groupby(["value", "condition_id"], sort=True):
                 base = anc_by_seed.loc[[(cid, s) for s in grp["seed"]]].to_numpy(float)
-                out[(float(val), cid)] = (np.nanmean(grp[cols].to_numpy(float) - base, axis=0),
-                                          len(grp))
+                lev = grp[cols].to_numpy(float)
+                ch = lev - base
+                if role == "base" and self.log_cols_.any():
+                    L = self.log_cols_
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        ch[:, L] = np.log(np.fmax(lev[:, L], 1e-12) / np.fmax(base[:, L], 1e-12))
+                out[(float(val), cid)] = (np.nanmean(ch, axis=0), len(grp))
             return out
 
         cid_has_flights = [c in self.flight_conditions for c in cids]
@@ -442,6 +457,7 @@ class OpenTwinModel(TwinModel):
                 if pt is None:
                     continue
                 noise = self.col_sd_[i] * math.sqrt(2.0 / self.base_seeds(p))
+                noise = np.where(self.log_cols_, noise / np.abs(self.anchor_[i]), noise)
                 used = [2 if self.velocity_frame == "jar" else 0, 1] + list(
                     range(3, len(cols)) if cid_has_flights[i] else [])
                 with np.errstate(divide="ignore", invalid="ignore"):   # noise-free columns
@@ -500,9 +516,19 @@ class OpenTwinModel(TwinModel):
             y[i] += _response(pt, pt[1], dx)
         return y
 
+    def _base_outputs(self, theta):
+        """(n_cond, n_cols) the model without effects at ``theta``: the anchor plus the base
+        responses (times their exp for the :data:`LOG_RESPONSE` columns)."""
+        bc = self._base_change(theta)
+        y = self.anchor_ + bc
+        L = self.log_cols_
+        if L.any():
+            y[:, L] = self.anchor_[:, L] * np.exp(bc[:, L])
+        return y
+
     def outputs(self, theta, effects=None):
         """(n_cond, n_cols) all model columns (lab v, f_col, frame v, impact observables)."""
-        y = self.anchor_ + self._base_change(theta)
+        y = self._base_outputs(theta)
         for name, s in (effects or {}).items():
             if name in self.sig_all_ and s:
                 y = y + interp_levels(self.sig_all_[name], float(s))
@@ -583,7 +609,16 @@ class OpenTwinModel(TwinModel):
                 c[i] -= 2.0 * wa / self.n_rep
                 for kb, wb in wsum[i].items():
                     c[i] += wa * wb / max(ka, kb)
-        unit = self._series(self.col_sd_) ** 2                   # one run's variance per key
+        # a log-space column's changes are relative: scale its run sd (and its jumps, which are
+        # log changes) to the prediction there
+        y = self._base_outputs(theta)
+        L = self.log_cols_
+        sd_run = self.col_sd_.copy()
+        if L.any():
+            ratio = np.abs(y[:, L]) / np.abs(self.anchor_[:, L])
+            sd_run[:, L] = sd_run[:, L] * np.nan_to_num(ratio, nan=1.0)
+            jump[:, L] = jump[:, L] * y[:, L] ** 2
+        unit = self._series(sd_run) ** 2                         # one run's variance per key
         cond = unit.index.get_level_values(0)
         ci = pd.Series(c, index=list(self.conditions["condition_id"]))
         extra = unit * ci.reindex(cond).to_numpy() + self._series(np.sqrt(jump)) ** 2
