@@ -1,10 +1,8 @@
 """A run for ParaView (VTK) and as a movie: frames, coordinates, sizes, and bad input that leaves
 nothing behind. Recordings are made from the 1-D bounce model (tests/test_observe.py), no YADE."""
-import hashlib
 import json
 import math
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -23,16 +21,9 @@ from tests.test_observe import fake_recording
 vtk_xml = pytest.importorskip("vtkmodules.vtkIOXML")
 from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
 
+from tests.test_output_safety import tree_hash  # noqa: E402
+
 BALL_D = 0.0206  # the fake recording's ball
-
-
-def tree_hash(root: Path) -> str:
-    h = hashlib.sha256()
-    for p in sorted(root.rglob("*")):
-        h.update(str(p.relative_to(root)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
 
 
 def default_jar():
