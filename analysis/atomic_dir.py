@@ -11,7 +11,11 @@ wrote itself. It refuses, before anything is written,
 * any folder given as ``protected`` (e.g. the dataset being analysed), one inside it or one
   holding it;
 * an existing, non-empty folder that carries no mark (:data:`MARKER`) of an earlier output of
-  this project and does not sit in ``results/``.
+  this project and does not sit in ``results/``. A stage may name the files it writes
+  (``own_names``, and say how it recognises its own earlier output, ``is_own``): then an
+  unmarked folder in the repository's home of its outputs (e.g. a committed
+  ``data/measurements/<name>`` written before the mark existed) is also replaced when it holds
+  nothing but files of those names (and ``is_own`` says it is the stage's).
 
 A stage that writes one FILE (a movie, say) follows the same rule through
 :func:`check_out_file`: the same places are refused, and an existing file is replaced only when
@@ -41,7 +45,14 @@ def _within(a: Path, b: Path) -> bool:
     return a == b or b in a.parents
 
 
-def check_out_dir(out_dir, protected=(), area="results", flag="--out"):
+def _only_own_files(folder: Path, own_names) -> bool:
+    """``folder`` holds nothing but plain files named in ``own_names``."""
+    names = set(own_names)
+    return all(p.is_file() and not p.is_symlink() and p.name in names for p in folder.iterdir())
+
+
+def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names=None,
+                  is_own=None):
     """Raise :class:`OutputError` when ``out_dir`` is not a folder this project may (re)write.
 
     Parameters
@@ -52,6 +63,13 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out"):
         ``results/<name>`` or, for a written measurement dataset, also ``data/measurements/<name>``
         (an existing dataset folder is replaced only when it carries the mark)
     flag : str - the command-line option that named the folder, for the messages
+    own_names : iterable of str, optional - the file names the stage writes into the folder; an
+        unmarked folder inside the repository's home of this area (``results/<name>``,
+        ``data/measurements/<name>``) holding only plain files of these names is taken as the
+        stage's own earlier output (a folder outside the repository still needs the mark)
+    is_own : callable, optional - ``is_own(resolved_folder) -> bool``, with ``own_names``: the
+        unmarked folder is taken as the stage's own only when this also says so (e.g. from what
+        a file in it records about its writer)
 
     Returns
     -------
@@ -90,23 +108,28 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out"):
     if out.exists():
         if not out.is_dir():
             raise OutputError("%s %s is a file, not a folder" % (flag, out_dir))
+        at_home = any(_within(out, h) for h in homes)
         if (any(out.iterdir()) and not (out / MARKER).exists()
-                and not (area == "results" and _within(out, results))):
+                and not (area == "results" and _within(out, results))
+                and not (own_names is not None and at_home and _only_own_files(out, own_names)
+                         and (is_own is None or is_own(out)))):
             raise OutputError("%s %s already holds files this project did not write; give "
                               "a new or empty folder" % (flag, out_dir))
     return out
 
 
-def staging_dir(out_dir, protected=(), area="results", flag="--out"):
+def staging_dir(out_dir, protected=(), area="results", flag="--out", own_names=None,
+                is_own=None):
     """A fresh temporary folder beside ``out_dir`` (same file system, so the swap is a rename),
     after :func:`check_out_dir` has accepted ``out_dir``."""
     out_dir = Path(out_dir)
-    check_out_dir(out_dir, protected, area, flag)
+    check_out_dir(out_dir, protected, area, flag, own_names, is_own)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
 
 
-def publish_dir(tmp, out_dir, protected=(), area="results", flag="--out"):
+def publish_dir(tmp, out_dir, protected=(), area="results", flag="--out", own_names=None,
+                is_own=None):
     """Mark the finished folder ``tmp`` and move it onto ``out_dir``, replacing an earlier output.
 
     The old folder is renamed away first, so ``out_dir`` never holds a mix of old and new files.
@@ -114,7 +137,7 @@ def publish_dir(tmp, out_dir, protected=(), area="results", flag="--out"):
     """
     tmp, out_dir = Path(tmp), Path(out_dir)
     try:
-        check_out_dir(out_dir, protected, area, flag)
+        check_out_dir(out_dir, protected, area, flag, own_names, is_own)
     except OutputError:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

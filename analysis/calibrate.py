@@ -46,10 +46,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import sys
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,6 +55,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import qmc
 
+from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
 from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR
 from analysis.emulator import GPEmulator
 from analysis.measurements import DatasetError as MeasurementError
@@ -474,17 +473,26 @@ def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_
 
 # ------------------------------------------------------------------------------------- CLI
 
-def write_results(res, out_dir, measurements_name=""):
-    """Write the calibration's tables and figures into ``out_dir`` (atomically)."""
+def write_results(res, out_dir, measurements_name="", protected=()):
+    """Write the calibration's tables and figures into ``out_dir`` atomically (temporary folder
+    beside it, swapped in when complete); an ``out_dir`` that is not ours to replace, or touches
+    a ``protected`` input, is refused (:func:`analysis.atomic_dir.check_out_dir`)."""
+    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
+    try:
+        _write_results(res, tmp, measurements_name)
+        publish_dir(tmp, out_dir, protected)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return Path(out_dir)
+
+
+def _write_results(res, tmp, measurements_name):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from analysis.plotting.calibration_plots import plot_pairs, plot_parity
 
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.with_name(".%s.tmp-%s" % (out_dir.name, uuid.uuid4().hex[:6]))
-    tmp.mkdir()
     res.to_frame().to_csv(tmp / "parameters.csv", float_format="%.6g")
     res.comparison.to_csv(tmp / "table3_comparison.csv", index=False, float_format="%.5g")
     res.design.to_csv(tmp / "design_runs.csv", index=False, float_format="%.6g")
@@ -507,10 +515,6 @@ def write_results(res, out_dir, measurements_name=""):
     axes = plot_pairs(res.samples, list(res.params.index), bounds=res.bounds)
     axes[0, 0].figure.savefig(tmp / "posterior_pairs.png", dpi=110)
     plt.close(axes[0, 0].figure)
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    os.rename(tmp, out_dir)
-    return out_dir
 
 
 def main(argv=None):
@@ -541,7 +545,10 @@ def main(argv=None):
                    help="config key fixed in every run, e.g. record_s=0.5 (repeatable)")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
+    # the twin's inputs and caches are never an output
+    protected = [args.dataset, args.runs_dir]
     try:
+        check_out_dir(args.out, protected)
         meas = load_measurements(args.dataset)
         base = {}
         for kv in args.set:
@@ -562,10 +569,10 @@ def main(argv=None):
                         base_config=base, exclude_modes=args.exclude_mode,
                         operator=args.operator,
                         random_state=args.seed, progress=lambda s: print(s, flush=True))
-    except (ValueError, OSError) as exc:
+        out = write_results(res, args.out, meas.attrs.get("name", ""), protected)
+    except (ValueError, OSError) as exc:   # OutputError is a ValueError
         print("analysis.calibrate: error: %s" % exc, file=sys.stderr)
         return 2
-    out = write_results(res, args.out, meas.attrs.get("name", ""))
     print(res.to_frame().to_string(float_format=lambda x: "%.4g" % x))
     cols = [c for c in ("condition_id", "v_mean_measured_m_s", "v_mean_dem_paper_m_s",
                         "v_mean_twin_m_s", "v_mean_twin_sd_m_s", "v_err_pct",

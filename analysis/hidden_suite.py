@@ -16,8 +16,10 @@ scored against the truth:
 
     python -m analysis.hidden_suite [--noise-seeds 5] [--workers 2] [--out results/hidden_suite]
 
-Twin runs are cached (results/runs), so a rerun or a killed suite recomputes nothing; the
-per-dataset outcome is appended to suite_rows.csv as it comes and reused by a rerun.
+Twin runs are cached (results/runs), so a rerun or a killed suite runs no twin again. The
+command builds the suite in a temporary folder beside ``--out`` and swaps it in when complete
+(a failed or killed suite leaves the earlier one as it was); a rerun without ``--fresh`` starts
+from the earlier suite's rows (suite_rows.csv) and datasets and diagnoses only what is new.
 """
 from __future__ import annotations
 
@@ -145,6 +147,12 @@ def projected_shift_sigma(prob, ds, truth):
     pr = _truth_problem(prob, ds, truth)
     fit = pr.fit({p.name: p.value for p in prob["base_params"]})
     return float(np.max(np.abs(fit.residuals.to_numpy())))
+
+
+def inputs():
+    """What the suite reads (the signature library, the calibration): never an output."""
+    from analysis.config import CALIBRATION_DIR
+    return [twin_model.SIGNATURE_DIR, CALIBRATION_DIR]
 
 
 def run_suite(out_dir=SUITE_DIR, noise_seeds=range(5), twin_seed=7, workers=2, cases=None,
@@ -368,27 +376,35 @@ def main(argv=None):
     if a.noise_seeds < 1:
         print("analysis.hidden_suite: error: --noise-seeds must be >= 1", file=sys.stderr)
         return 2
-    if a.fresh and Path(a.out).exists():
-        shutil.rmtree(a.out)
+    from analysis.atomic_dir import MARKER, check_out_dir, publish_dir, staging_dir
+    out = Path(a.out)
+    protected = inputs()
     t0 = time.perf_counter()
     try:
-        rows = run_suite(a.out, noise_seeds=range(a.noise_seeds), twin_seed=a.twin_seed,
-                         workers=a.workers, flights=not a.no_flights)
-    except (FileNotFoundError, RuntimeError, ValueError) as exc:
+        check_out_dir(out, protected)   # before anything is read, removed or run
+        tmp = staging_dir(out, protected)
+        try:
+            if not a.fresh and out.is_dir():
+                # resume: the earlier suite's rows and datasets are reused, not recomputed
+                shutil.copytree(out, tmp, dirs_exist_ok=True,
+                                ignore=lambda d, names: [MARKER] if Path(d) == out else [])
+            rows = run_suite(tmp, noise_seeds=range(a.noise_seeds), twin_seed=a.twin_seed,
+                             workers=a.workers, flights=not a.no_flights)
+            summ = write_report(rows, tmp)
+            if a.also_without_tracks and not a.no_flights:
+                sub = tmp / "without_tracks"
+                rows0 = run_suite(sub, noise_seeds=range(a.noise_seeds), twin_seed=a.twin_seed,
+                                  workers=a.workers, flights=False)
+                summ0 = write_report(rows0, sub)
+                _append_comparison(tmp / "README.md", summ, summ0, per_effect(rows),
+                                   per_effect(rows0))
+            publish_dir(tmp, out, protected)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    except (FileNotFoundError, RuntimeError, ValueError) as exc:  # OutputError: ValueError
         print("analysis.hidden_suite: error: %s" % exc, file=sys.stderr)
         return 2
-    summ = write_report(rows, a.out)
-    if a.also_without_tracks and not a.no_flights:
-        sub = Path(a.out) / "without_tracks"
-        try:
-            rows0 = run_suite(sub, noise_seeds=range(a.noise_seeds), twin_seed=a.twin_seed,
-                              workers=a.workers, flights=False)
-        except (FileNotFoundError, RuntimeError, ValueError) as exc:
-            print("analysis.hidden_suite: error: %s" % exc, file=sys.stderr)
-            return 2
-        summ0 = write_report(rows0, sub)
-        _append_comparison(Path(a.out) / "README.md", summ, summ0, per_effect(rows),
-                           per_effect(rows0))
     print(per_effect(rows).to_string(index=False))
     for k, v in summ.items():
         print("%-32s %s" % (k, v))

@@ -28,7 +28,6 @@ import argparse
 import json
 import shutil
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -902,9 +901,19 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _inputs(args):
+    """The files and folders ``run`` reads: never an output."""
+    from analysis import yield_data
+    return [args.yields if args.yields is not None else yield_data.SYNTHETIC_DATASET_DIR,
+            args.twin_table]
+
+
 def run(args) -> Path:
     from analysis import yield_data
+    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
 
+    protected = _inputs(args)
+    check_out_dir(args.out, protected)
     ds_path = args.yields if args.yields is not None else yield_data.SYNTHETIC_DATASET_DIR
     ds = yield_data.load_yield_dataset(ds_path)
     if args.twin_table is not None:
@@ -920,8 +929,7 @@ def run(args) -> Path:
                        n_boot=args.n_boot, random_state=args.seed, source=src)
     data["regime_fit"] = regime_of(data["e_tot_j"], fit)
 
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-kinetics-", dir=args.out.parent))
+    tmp = staging_dir(args.out, protected)  # makes the parent folder too
     try:
         inputs.to_csv(tmp / "energy_inputs.csv", index=False)
         energy.to_csv(tmp / "energy_per_condition.csv", index=False)
@@ -931,9 +939,7 @@ def run(args) -> Path:
             tmp / "boundaries.csv", index=False)
         fit.save(tmp / "kinetics_fit.json")
         _write_figures(tmp, fit, data, inputs, energy, ds.synthetic, src)
-        if args.out.exists():
-            shutil.rmtree(args.out)
-        tmp.rename(args.out)
+        publish_dir(tmp, args.out, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -964,11 +970,13 @@ def _write_figures(folder, fit, data, inputs, energy, synthetic, src):
 
 
 def main(argv=None) -> int:
+    from analysis.atomic_dir import check_out_dir
     args = _build_parser().parse_args(argv)
     try:
+        check_out_dir(args.out, _inputs(args))   # before any work
         out = run(args)
-    except (KineticsInputError, ValueError, FileNotFoundError) as exc:
-        print(f"kinetics: error: {exc}", file=sys.stderr)
+    except (KineticsInputError, ValueError, FileNotFoundError) as exc:  # OutputError: ValueError
+        print(f"analysis.kinetics: error: {exc}", file=sys.stderr)
         return 2
     fit = KineticsFit.load(out / "kinetics_fit.json")
     p, se = fit.line.params, fit.line.stderr

@@ -35,7 +35,6 @@ import functools
 import json
 import shutil
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -426,9 +425,21 @@ def _parser():
     return p
 
 
+def _compare_inputs(args):
+    """The files and folders ``--compare`` reads: never an output."""
+    from analysis import yield_data
+    return [args.yields if args.yields is not None else yield_data.SYNTHETIC_DATASET_DIR,
+            args.kinetics if args.kinetics is not None else DEFAULT_KINETICS_PATH,
+            args.surrogate if args.surrogate is not None else DEFAULT_SURROGATE_PATH,
+            args.twin_table]
+
+
 def _run_compare(args) -> Path:
     from analysis import yield_data
+    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
 
+    protected = _compare_inputs(args)
+    check_out_dir(args.out, protected)
     ds = yield_data.load_yield_dataset(args.yields or yield_data.SYNTHETIC_DATASET_DIR)
     kfit = load_kinetics(args.kinetics, args.yields)
     twin = (kin.load_twin_energy_table(args.twin_table) if args.twin_table is not None
@@ -441,8 +452,7 @@ def _run_compare(args) -> Path:
               else load_surrogate(None, None, kinds=sur.KINDS))
     table = compare_yield_sources(kfit, twin, bundle, ds.conditions, ds.yields)
     summ = summarize_comparison(table)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-predict-", dir=args.out.parent))
+    tmp = staging_dir(args.out, protected)  # makes the parent folder too
     try:
         table.to_csv(tmp / "yield_comparison.csv", index=False)
         summ.to_csv(tmp / "table6_abs_errors.csv", index=False)
@@ -470,9 +480,7 @@ def _run_compare(args) -> Path:
                      + str(twin["source"].iloc[0])[:60] + "; surrogate: " + bundle.source[:40],
                      fontsize=7)
         fig.tight_layout(); fig.savefig(tmp / "fig14_yield_parity.png", dpi=120); plt.close(fig)
-        if args.out.exists():
-            shutil.rmtree(args.out)
-        tmp.rename(args.out)
+        publish_dir(tmp, args.out, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -486,6 +494,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     try:
         if args.compare:
+            from analysis.atomic_dir import check_out_dir
+            check_out_dir(args.out, _compare_inputs(args))   # before any work
             _run_compare(args)
             return 0
         missing = [n for n in ("frequency_hz", "ball_diameter_mm", "time_min")

@@ -27,10 +27,8 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import os
 import shutil
 import sys
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -282,9 +280,12 @@ def main(argv=None):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
     from analysis.emulator import GPEmulator
     from analysis.plotting.calibration_plots import plot_figure8, plot_sobol
+    protected = [args.runs_dir]          # the twin's run cache is never an output
     try:
+        check_out_dir(args.out, protected)   # before any twin run
         if args.fake:
             from analysis.fake_twin import simulate_fake as simulate
         else:
@@ -298,28 +299,28 @@ def main(argv=None):
         em = GPEmulator(CONTACT_BOUNDS, outputs=("v_mean_m_s",), random_state=args.seed)
         em.fit(ok, ok)
         sob = emulator_sobol(em, CONTACT_BOUNDS, n_base=args.n_base, seed=args.seed)
-    except (ValueError, OSError) as exc:
+        out = Path(args.out)
+        tmp = staging_dir(out, protected)  # makes the parent folder too
+        try:
+            study.runs.to_csv(tmp / "figure8_runs.csv", index=False, float_format="%.6g")
+            study.summary.to_csv(tmp / "figure8_grid.csv", index=False, float_format="%.6g")
+            sob.to_frame().to_csv(tmp / "sobol_v_mean.csv", float_format="%.5g")
+            em.loo_.to_csv(tmp / "emulator_loo.csv", float_format="%.5g")
+            axes = plot_figure8(study.summary, study.target_m_s, study.tol_m_s)
+            axes[0].figure.tight_layout()
+            axes[0].figure.savefig(tmp / "figure8.png", dpi=130)
+            plt.close(axes[0].figure)
+            ax = plot_sobol(sob.to_frame())
+            ax.figure.tight_layout()
+            ax.figure.savefig(tmp / "sobol_v_mean.png", dpi=130)
+            plt.close(ax.figure)
+            publish_dir(tmp, out, protected)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    except (ValueError, OSError) as exc:   # OutputError is a ValueError
         print("analysis.sensitivity: error: %s" % exc, file=sys.stderr)
         return 2
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(".%s.tmp-%s" % (out.name, uuid.uuid4().hex[:6]))
-    tmp.mkdir()
-    study.runs.to_csv(tmp / "figure8_runs.csv", index=False, float_format="%.6g")
-    study.summary.to_csv(tmp / "figure8_grid.csv", index=False, float_format="%.6g")
-    sob.to_frame().to_csv(tmp / "sobol_v_mean.csv", float_format="%.5g")
-    em.loo_.to_csv(tmp / "emulator_loo.csv", float_format="%.5g")
-    axes = plot_figure8(study.summary, study.target_m_s, study.tol_m_s)
-    axes[0].figure.tight_layout()
-    axes[0].figure.savefig(tmp / "figure8.png", dpi=130)
-    plt.close(axes[0].figure)
-    ax = plot_sobol(sob.to_frame())
-    ax.figure.tight_layout()
-    ax.figure.savefig(tmp / "sobol_v_mean.png", dpi=130)
-    plt.close(ax.figure)
-    if out.exists():
-        shutil.rmtree(out)
-    os.rename(tmp, out)
     m = study.matches
     print("grid: %d points x %d replicates, pooled replicate sd %.3f m/s, band +-%.3f m/s"
           % (len(study.summary), args.replicates, study.pooled_sd_m_s, study.tol_m_s))

@@ -35,7 +35,6 @@ import argparse
 import json
 import shutil
 import sys
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -713,7 +712,16 @@ def _parser():
     return p
 
 
+def _inputs(args):
+    """The files ``run`` reads: never an output."""
+    return [args.twin_table, args.validation_table]
+
+
 def run(args) -> Path:
+    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+
+    protected = _inputs(args)
+    check_out_dir(args.out, protected)
     jar = args.jar_volume_ml * 1e-6
     truth = None
     if args.twin_table is not None:
@@ -743,8 +751,7 @@ def run(args) -> Path:
         lc = learning_curve(table, kinds=[k for k in args.kinds if k != "rf"] or args.kinds,
                             n_repeats=args.lc_repeats, random_state=args.seed, truth=truth)
 
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-surrogate-", dir=args.out.parent))
+    tmp = staging_dir(args.out, protected)  # makes the parent folder too
     try:
         pd.concat([r.to_frame() for r in results.values()]).to_csv(tmp / "metrics.csv", index=False)
         pd.concat([r.predictions.assign(kind=k) for k, r in results.items()]).to_csv(
@@ -771,9 +778,7 @@ def run(args) -> Path:
                 indent=1))
         bundle.save(tmp / "surrogate.joblib")
         _figures(tmp, results, lc, source)
-        if args.out.exists():
-            shutil.rmtree(args.out)
-        tmp.rename(args.out)
+        publish_dir(tmp, args.out, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -802,11 +807,13 @@ def _figures(folder, results, lc, source):
 
 
 def main(argv=None) -> int:
+    from analysis.atomic_dir import check_out_dir
     args = _parser().parse_args(argv)
     try:
+        check_out_dir(args.out, _inputs(args))   # before any work
         out = run(args)
-    except (SurrogateInputError, ValueError, FileNotFoundError) as exc:
-        print(f"surrogate: error: {exc}", file=sys.stderr)
+    except (SurrogateInputError, ValueError, FileNotFoundError) as exc:  # OutputError: ValueError
+        print(f"analysis.surrogate: error: {exc}", file=sys.stderr)
         return 2
     met = pd.read_csv(out / "metrics.csv")
     print(f"source: {json.loads((out / 'source.json').read_text())['source']}")

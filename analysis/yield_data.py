@@ -54,7 +54,6 @@ import argparse
 import json
 import shutil
 import sys
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -66,6 +65,8 @@ from analysis import kinetics
 
 SYNTHETIC_DATASET_NAME = "synthetic_yields_paper"
 SYNTHETIC_DATASET_DIR = config.MEASUREMENTS_DIR / SYNTHETIC_DATASET_NAME
+#: how a generated dataset's dataset.json names its writer ("source")
+GENERATOR_SOURCE = "analysis.yield_data.generate_synthetic_yields"
 PHASES = ("powder", "wax", "complete")
 
 #: sampling times [min] per frequency [Hz] of the synthetic design (see module docstring)
@@ -351,7 +352,7 @@ def generate_synthetic_yields(truth: SyntheticYieldTruth = SyntheticYieldTruth()
         "description": ("SYNTHETIC PET yields (NOT measured): generated from the paper's stated "
                         "kinetics (Table 4 line, boundaries 4593 / 7126 J, r2 0.966, completion "
                         "at 20/25/40 min for 30/27.5/25 Hz), one 20 mm steel ball, 25 mL jar."),
-        "source": "analysis.yield_data.generate_synthetic_yields; Anglou et al. 2024 Section 4",
+        "source": GENERATOR_SOURCE + "; Anglou et al. 2024 Section 4",
         "velocity_frame": "lab",
         "seed": seed if isinstance(seed, int) else None,
         "n_replicates": int(n_replicates),
@@ -367,21 +368,49 @@ def generate_synthetic_yields(truth: SyntheticYieldTruth = SyntheticYieldTruth()
     return cond, y, meta
 
 
+#: the files :func:`write_yield_dataset` writes (an unmarked committed dataset folder holding
+#: only these is its own earlier output)
+DATASET_FILES = ("dataset.json", "conditions.csv", "yields.csv", "summary.csv")
+
+
+def _is_generated(folder: Path) -> bool:
+    """``folder`` holds a dataset written by :func:`generate_synthetic_yields` (its dataset.json
+    says so): an earlier output of this module, not someone's measurements."""
+    try:
+        meta = json.loads((Path(folder) / "dataset.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return (isinstance(meta, dict) and meta.get("synthetic") is True
+            and str(meta.get("source", "")).startswith(GENERATOR_SOURCE))
+
+
+def _out_rule():
+    return dict(area="datasets", own_names=DATASET_FILES, is_own=_is_generated)
+
+
+def check_yield_out(out_dir, flag="--out") -> Path:
+    """Raise :class:`analysis.atomic_dir.OutputError` unless ``out_dir`` is a folder a yield
+    dataset may be written to: new, empty, marked as an earlier output of this project, or an
+    unmarked dataset folder of the repository that this module's generator wrote (only its files,
+    its dataset.json naming the generator)."""
+    from analysis.atomic_dir import check_out_dir
+    return check_out_dir(out_dir, flag=flag, **_out_rule())
+
+
 def write_yield_dataset(out_dir: Path, conditions: pd.DataFrame, yields: pd.DataFrame,
                         meta: dict, summary: pd.DataFrame | None = None) -> Path:
-    """Write dataset.json, conditions.csv, yields.csv (and summary.csv) atomically."""
+    """Write dataset.json, conditions.csv, yields.csv (and summary.csv) atomically; a folder that
+    is not ours to replace is refused (:func:`check_yield_out`)."""
+    from analysis.atomic_dir import publish_dir, staging_dir
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-yields-", dir=out_dir.parent))
+    tmp = staging_dir(out_dir, **_out_rule())  # makes the parent folder too
     try:
         (tmp / "dataset.json").write_text(json.dumps(meta, indent=1))
         conditions.to_csv(tmp / "conditions.csv", index=False)
         yields.to_csv(tmp / "yields.csv", index=False)
         if summary is not None:
             summary.to_csv(tmp / "summary.csv", index=False)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        tmp.rename(out_dir)
+        publish_dir(tmp, out_dir, **_out_rule())
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -408,8 +437,10 @@ def main(argv=None) -> int:
     c = sub.add_parser("check", help="validate data/measurements/<name> (yields.csv)")
     c.add_argument("path", type=Path)
     args = p.parse_args(argv)
+    from analysis.atomic_dir import OutputError
     try:
         if args.cmd == "generate":
+            check_yield_out(args.out)   # before any work
             energy = synthetic_energy_inputs(tuple(DEFAULT_SCHEDULE_MIN))
             cond, y, meta = generate_synthetic_yields(energy=energy, seed=args.seed,
                                                       n_replicates=args.n_replicates)
@@ -420,8 +451,8 @@ def main(argv=None) -> int:
             ds = load_yield_dataset(args.path)
             print(f"{ds.name}: {len(ds.conditions)} conditions, {len(ds.yields)} yield rows, "
                   f"synthetic={ds.synthetic}: OK")
-    except (YieldDataError, kinetics.KineticsInputError) as exc:
-        print(f"yield_data: error: {exc}", file=sys.stderr)
+    except (YieldDataError, kinetics.KineticsInputError, OutputError) as exc:
+        print(f"analysis.yield_data: error: {exc}", file=sys.stderr)
         return 2
     return 0
 

@@ -21,18 +21,31 @@ from pathlib import Path
 
 import pandas as pd
 
-from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
+from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR, RESULTS_DIR
 
 OUT_DIR = RESULTS_DIR / "paper_diagnosis"
 
 
+def inputs():
+    """What the study reads (the dataset, the signature library, the calibration): never an
+    output."""
+    from analysis.twin_model import SIGNATURE_DIR
+    return [PAPER_TABLE3_DIR, SIGNATURE_DIR, CALIBRATION_DIR]
+
+
 def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=print):
+    """Diagnose Table 3 and write the study folder ``out_dir`` atomically (temporary folder
+    beside it, swapped in when complete); an ``out_dir`` that is not ours to replace, or touches
+    an input, is refused before any work (:func:`analysis.atomic_dir.check_out_dir`)."""
     from analysis import twin_model
+    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
     from analysis.diagnose import add_effect, diagnose, write_diagnosis
     from analysis.hidden_demo import twin_predictions
     from analysis.measurements import load_dataset
 
     out_dir = Path(out_dir)
+    protected = inputs()
+    check_out_dir(out_dir, protected)
     ds = load_dataset(PAPER_TABLE3_DIR)
     prob = twin_model.factory(ds)
     model = prob["model"]
@@ -48,75 +61,76 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
         added = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], name,
                            model_se=prob["model_se"], effect_se=prob.get("effect_se"))
         say(added.summary())
-    tmp = out_dir.with_name("." + out_dir.name + ".tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir(parents=True)
-    write_diagnosis(diag, tmp / "diagnose", added, ds.name)
-    meas = ds.summary.set_index("condition_id")
-    table = pd.DataFrame({"condition_id": ds.conditions["condition_id"]}).set_index(
-        "condition_id")
-    table["v_mean_measured_m_s"] = meas["v_mean_m_s"].astype(float)
-    table["f_col_measured_hz"] = meas["f_col_hz"].astype(float)
-    theta_ref = dict(model.theta_ref)
-    cal = model.dem_outputs(theta_ref)
-    table["v_mean_twin_calibrated_m_s"] = cal[:, 0]
-    table["v_err_calibrated_pct"] = 100 * (cal[:, 0] / table["v_mean_measured_m_s"] - 1)
-    if added is not None and verify:
-        p = added.after.params
-        theta = dict(theta_ref, **{k: float("%.4g" % p[k]) for k in theta_ref if k in p})
-        cand = twin_model.candidates()[name]
-        s = float(p[name])
-        spec = cand.spec(s) if (s > 0 and cand.kind == "dem") else {}
-        say("rerunning the twin with %s at %s (%d runs)" % (name, spec or "-",
-                                                            replicates * len(table)))
-        pred = twin_predictions(ds.conditions, theta, spec, {}, 0.0, 0.0, {},
-                                replicates=replicates, workers=workers)
-        pv = pred[pred["observable"] == "v_mean_m_s"].set_index("condition_id")
-        pf = pred[pred["observable"] == "f_col_hz"].set_index("condition_id")
-        table["v_mean_twin_with_effect_m_s"] = pv["mean"]
-        table["v_mean_twin_with_effect_sd_m_s"] = pv["sd"]
-        table["f_col_twin_with_effect_hz"] = pf["mean"]
-        table["v_err_with_effect_pct"] = 100 * (pv["mean"] / table["v_mean_measured_m_s"] - 1)
-        table.attrs["theta"] = theta
-        table.attrs["effect"] = spec
-    table.reset_index().to_csv(tmp / "table3_with_effect.csv", index=False,
-                               float_format="%.5g")
-    summary = {"verdict": diag.verdict, "status": diag.status, "best": diag.best,
-               "added": name,
-               "mean_abs_v_err_calibrated_pct": float(table["v_err_calibrated_pct"].abs().mean()),
-               "max_abs_v_err_calibrated_pct": float(table["v_err_calibrated_pct"].abs().max())}
-    if "v_err_with_effect_pct" in table:
-        summary.update(mean_abs_v_err_with_effect_pct=float(
-            table["v_err_with_effect_pct"].abs().mean()),
-            max_abs_v_err_with_effect_pct=float(table["v_err_with_effect_pct"].abs().max()),
-            theta=table.attrs["theta"], effect=table.attrs["effect"])
-    (tmp / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
-    lines = ["# Which effect is missing on the paper's Table 3?", "",
-             "The issue-6 loop on the real measurements (v_mean sd 1.5 %, f_col sd 1 /s assumed; "
-             "Table 3 gives none). Model: `analysis.twin_model` (anchor at the calibrated "
-             "parameters, restitution and amplitude refitted). Regenerate: "
-             "`python -m analysis.studies.paper_diagnosis`.", "",
-             "**Verdict:** " + diag.verdict, "", "![ranking](diagnose/ranking.png)", ""]
-    if added is not None:
-        lines += ["**Added:** " + added.summary(), ""]
-    cols = [c for c in table.columns if "sd" not in c]
-    lines += ["| condition | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
-    for cid, r in table.iterrows():
-        lines.append("| %s | " % cid + " | ".join("%.3f" % r[c] if "err" not in c
-                                                  else "%+.2f" % r[c] for c in cols) + " |")
-    lines += ["", "mean |v error|: calibrated twin %.2f %% (max %.2f %%)"
-              % (summary["mean_abs_v_err_calibrated_pct"],
-                 summary["max_abs_v_err_calibrated_pct"])]
-    if "mean_abs_v_err_with_effect_pct" in summary:
-        lines[-1] += ("; twin rerun with %s: %.2f %% (max %.2f %%)"
-                      % (name, summary["mean_abs_v_err_with_effect_pct"],
-                         summary["max_abs_v_err_with_effect_pct"]))
-    lines.append("")
-    (tmp / "README.md").write_text("\n".join(lines))
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    tmp.rename(out_dir)
+    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
+    try:
+        write_diagnosis(diag, tmp / "diagnose", added, ds.name)
+        meas = ds.summary.set_index("condition_id")
+        table = pd.DataFrame({"condition_id": ds.conditions["condition_id"]}).set_index(
+            "condition_id")
+        table["v_mean_measured_m_s"] = meas["v_mean_m_s"].astype(float)
+        table["f_col_measured_hz"] = meas["f_col_hz"].astype(float)
+        theta_ref = dict(model.theta_ref)
+        cal = model.dem_outputs(theta_ref)
+        table["v_mean_twin_calibrated_m_s"] = cal[:, 0]
+        table["v_err_calibrated_pct"] = 100 * (cal[:, 0] / table["v_mean_measured_m_s"] - 1)
+        if added is not None and verify:
+            p = added.after.params
+            theta = dict(theta_ref, **{k: float("%.4g" % p[k]) for k in theta_ref if k in p})
+            cand = twin_model.candidates()[name]
+            s = float(p[name])
+            spec = cand.spec(s) if (s > 0 and cand.kind == "dem") else {}
+            say("rerunning the twin with %s at %s (%d runs)" % (name, spec or "-",
+                                                                replicates * len(table)))
+            pred = twin_predictions(ds.conditions, theta, spec, {}, 0.0, 0.0, {},
+                                    replicates=replicates, workers=workers)
+            pv = pred[pred["observable"] == "v_mean_m_s"].set_index("condition_id")
+            pf = pred[pred["observable"] == "f_col_hz"].set_index("condition_id")
+            table["v_mean_twin_with_effect_m_s"] = pv["mean"]
+            table["v_mean_twin_with_effect_sd_m_s"] = pv["sd"]
+            table["f_col_twin_with_effect_hz"] = pf["mean"]
+            table["v_err_with_effect_pct"] = 100 * (pv["mean"]
+                                                    / table["v_mean_measured_m_s"] - 1)
+            table.attrs["theta"] = theta
+            table.attrs["effect"] = spec
+        table.reset_index().to_csv(tmp / "table3_with_effect.csv", index=False,
+                                   float_format="%.5g")
+        err_cal = table["v_err_calibrated_pct"].abs()
+        summary = {"verdict": diag.verdict, "status": diag.status, "best": diag.best,
+                   "added": name,
+                   "mean_abs_v_err_calibrated_pct": float(err_cal.mean()),
+                   "max_abs_v_err_calibrated_pct": float(err_cal.max())}
+        if "v_err_with_effect_pct" in table:
+            summary.update(mean_abs_v_err_with_effect_pct=float(
+                table["v_err_with_effect_pct"].abs().mean()),
+                max_abs_v_err_with_effect_pct=float(table["v_err_with_effect_pct"].abs().max()),
+                theta=table.attrs["theta"], effect=table.attrs["effect"])
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+        lines = ["# Which effect is missing on the paper's Table 3?", "",
+                 "The issue-6 loop on the real measurements (v_mean sd 1.5 %, f_col sd 1 /s "
+                 "assumed; Table 3 gives none). Model: `analysis.twin_model` (anchor at the "
+                 "calibrated parameters, restitution and amplitude refitted). Regenerate: "
+                 "`python -m analysis.studies.paper_diagnosis`.", "",
+                 "**Verdict:** " + diag.verdict, "", "![ranking](diagnose/ranking.png)", ""]
+        if added is not None:
+            lines += ["**Added:** " + added.summary(), ""]
+        cols = [c for c in table.columns if "sd" not in c]
+        lines += ["| condition | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+        for cid, r in table.iterrows():
+            lines.append("| %s | " % cid + " | ".join("%.3f" % r[c] if "err" not in c
+                                                      else "%+.2f" % r[c] for c in cols) + " |")
+        lines += ["", "mean |v error|: calibrated twin %.2f %% (max %.2f %%)"
+                  % (summary["mean_abs_v_err_calibrated_pct"],
+                     summary["max_abs_v_err_calibrated_pct"])]
+        if "mean_abs_v_err_with_effect_pct" in summary:
+            lines[-1] += ("; twin rerun with %s: %.2f %% (max %.2f %%)"
+                          % (name, summary["mean_abs_v_err_with_effect_pct"],
+                             summary["max_abs_v_err_with_effect_pct"]))
+        lines.append("")
+        (tmp / "README.md").write_text("\n".join(lines))
+        publish_dir(tmp, out_dir, protected)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     say("wrote %s" % out_dir)
     return summary
 
@@ -132,8 +146,8 @@ def main(argv=None):
     try:
         run(a.out, add=a.add, replicates=a.replicates, workers=a.workers,
             verify=not a.no_verify)
-    except (FileNotFoundError, RuntimeError, ValueError) as exc:
-        print("paper_diagnosis: error: %s" % exc, file=sys.stderr)
+    except (FileNotFoundError, RuntimeError, ValueError) as exc:  # OutputError: ValueError
+        print("analysis.studies.paper_diagnosis: error: %s" % exc, file=sys.stderr)
         return 2
     return 0
 
