@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -412,7 +413,9 @@ class OpenTwinModel(TwinModel):
                     L = self.log_cols_
                     with np.errstate(divide="ignore", invalid="ignore"):
                         ch[:, L] = np.log(np.fmax(lev[:, L], 1e-12) / np.fmax(base[:, L], 1e-12))
-                out[(float(val), cid)] = (np.nanmean(ch, axis=0), len(grp))
+                with warnings.catch_warnings():     # a column no run of the group has: NaN
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    out[(float(val), cid)] = (np.nanmean(ch, axis=0), len(grp))
             return out
 
         cid_has_flights = [c in self.flight_conditions for c in cids]
