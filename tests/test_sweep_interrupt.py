@@ -49,17 +49,11 @@ def child_process_runner(config, runs_dir=None, force=False, delay_s=RUN_S, mark
     return run_fake_twin(config, runs_dir=runs_dir, force=force)
 
 
+from tests.test_sweep import _exec_counts  # noqa: E402  (run id -> times started)
+
+
 def _configs(n=N_RUNS):
     return [{"restitution": 0.1 + 0.05 * i, "seed": 100 + i} for i in range(n)]
-
-
-def _starts(log):
-    """run id -> how often it was started."""
-    counts = {}
-    for p in Path(log).glob("*.*"):
-        rid = p.name.split(".")[0]
-        counts[rid] = counts.get(rid, 0) + 1
-    return counts
 
 
 def _finished(runs):
@@ -198,10 +192,10 @@ def _interrupt_and_resume(tmp_path, marker, send, expected_rc):
     assert "finished" in lines[0] and "rerun the same command" in lines[0], lines[0]
 
     finished = _finished(runs)
-    starts = _starts(log)
+    starts = _exec_counts(log)
     assert 2 <= len(finished) < N_RUNS
     time.sleep(2 * RUN_S)          # nothing keeps working on the queue after the exit
-    assert _starts(log) == starts and _finished(runs) == finished
+    assert _exec_counts(log) == starts and _finished(runs) == finished
     _check_cache(runs)
     (tmp_path / "hold").unlink()
 
@@ -217,7 +211,7 @@ def _interrupt_and_resume(tmp_path, marker, send, expected_rc):
     again = subprocess.run(_cli(tmp_path, marker), cwd=REPO_ROOT, capture_output=True,
                            text=True, timeout=60)
     assert again.returncode == 0, again.stderr
-    after = _starts(log)
+    after = _exec_counts(log)
     for rid in finished:
         assert after[rid] == 1, "finished run %s was recomputed" % rid
     assert len(_finished(runs)) == N_RUNS
@@ -297,7 +291,7 @@ def test_run_sweep_raises_interrupted_and_resumes(tmp_path, marker, backend):
     res = sweep.run_sweep(cfgs, runner=RUNNER, runner_kwargs=kw, workers=2, backend=backend,
                           runs_dir=runs, progress=False)
     assert res.ok and res.n_executed == 5 - len(finished)
-    assert all(_starts(log)[rid] == 1 for rid in finished)
+    assert all(_exec_counts(log)[rid] == 1 for rid in finished)
 
 
 def test_uncaught_interrupt_prints_one_line(tmp_path, marker):
@@ -343,8 +337,8 @@ def test_dask_backend_cancels_its_futures(tmp_path, marker):
     st = exc.result.table.set_index("run_id")["status"]
     assert (st == "interrupted").sum() >= 1 and (st == "not_started").sum() >= 1
     assert set(st) <= {"done", "interrupted", "not_started"}
-    starts = _starts(log)
+    starts = _exec_counts(log)
     time.sleep(1.0)
-    assert _starts(log) == starts                           # the cancelled runs never start
+    assert _exec_counts(log) == starts                           # the cancelled runs never start
     assert not set(st[st == "not_started"].index) & set(starts)
     _check_cache(runs)
