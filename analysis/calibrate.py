@@ -589,4 +589,8 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt as exc:          # SIGINT / SIGTERM: one line, 130 / 143
+        from analysis.sweep import interrupted_exit
+        sys.exit(interrupted_exit("analysis.calibrate", exc))

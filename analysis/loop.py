@@ -770,10 +770,9 @@ def main(argv=None):
     except (DatasetError, ConditionError, OutputError, ValueError, RuntimeError) as exc:
         print("analysis.loop: error: %s" % exc, file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("analysis.loop: interrupted; finished twin runs stay cached - run the same "
-              "command again to resume", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:                # SIGINT / SIGTERM: one line, 130 / 143
+        from analysis.sweep import interrupted_exit
+        return interrupted_exit("analysis.loop", exc)
     print(res.verdict)
     print("staircase: " + ", ".join("%s %.2f" % (r.stage, r.chi2_dof)
                                     for r in res.staircase.itertuples()))
