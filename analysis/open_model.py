@@ -422,10 +422,8 @@ class OpenTwinModel(TwinModel):
         # the motion mode most of the anchor's runs move in, and per group of runs the share
         # moving in it: a level where fewer than half do lies across a bifurcation
         mm = runs.assign(motion_mode=runs["motion_mode"].fillna(""))
-        anchor_mode = {c: (mm.loc[(mm["role"] == "anchor") & (mm["condition_id"] == c),
-                                  "motion_mode"].value_counts().index[0]
-                           if ((mm["role"] == "anchor") & (mm["condition_id"] == c)).any()
-                           else "") for c in cids}
+        anchor_mode = (mm[mm["role"] == "anchor"].groupby("condition_id")["motion_mode"]
+                       .agg(lambda m: m.value_counts().index[0]).to_dict())
         share = mm.assign(same=[m == anchor_mode.get(c, "") for m, c in
                                 zip(mm["motion_mode"], mm["condition_id"])]).groupby(
             ["role", "name", "value", "condition_id"], sort=False)["same"].mean()
@@ -502,20 +500,21 @@ class OpenTwinModel(TwinModel):
         return dict(self.held_)
 
     # ------------------------------------------------------------------ evaluation
-    def _base_points(self, theta, names=False):
-        """(condition index, response points xs, changes ds, offset dx[, parameter]) of every
-        base parameter moved from the anchor in ``theta``, at every condition where it acts."""
+    def _base_points(self, theta):
+        """(condition index, response points (xs, changes, jump flags), offset dx, parameter)
+        of every base parameter moved from the anchor in ``theta``, at every condition where
+        it acts."""
         for p, pts in self.base_resp_.items():
             dx = float(theta.get(p, self.theta_ref[p])) - self.theta_ref[p]
             if dx == 0.0:
                 continue
             for i, pt in enumerate(pts):
                 if pt is not None:
-                    yield (i, pt, dx, p) if names else (i, pt, dx)
+                    yield i, pt, dx, p
 
     def _base_change(self, theta):
         y = np.zeros_like(self.anchor_)
-        for i, pt, dx in self._base_points(theta):
+        for i, pt, dx, _ in self._base_points(theta):
             y[i] += _response(pt, pt[1], dx)
         return y
 
@@ -598,7 +597,7 @@ class OpenTwinModel(TwinModel):
         sq = np.zeros(n)
         wsum = [dict() for _ in range(n)]
         jump = np.zeros((n, len(self.cols_)))
-        for i, pt, dx, p in self._base_points(theta, names=True):
+        for i, pt, dx, p in self._base_points(theta):
             xs = pt[0]
             w = _response(pt, np.eye(len(xs)), dx)               # weight of each point
             w = np.where(xs == 0.0, 0.0, w)                      # the anchor's own: in se
