@@ -93,10 +93,11 @@ class LoopResult:
 
 # --------------------------------------------------------------------------- pieces
 
-def _with_run_sd(obs, model):
+def fit_observations(obs, model):
     """The observations the model is fitted to: a track is one realisation of a chaotic
     motion, so the sd of its impact observables is at least one twin run's scatter
-    (:func:`analysis.twin_model.with_run_sd`); and the priors of the model's base parameters as pseudo-observations."""
+    (:func:`analysis.twin_model.with_run_sd`); and the priors of the model's base parameters
+    as pseudo-observations."""
     pri = getattr(model, "prior_observations", None)
     if pri is not None and len(pri()):
         obs = pd.concat([obs, pri()], ignore_index=True)
@@ -367,7 +368,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
 
     def analyse(model):
         """calibrate, forward selection, final joint fit on one model."""
-        obs = _with_run_sd(obs0, model)
+        obs = fit_observations(obs0, model)
         baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
                                        model_se=model.model_se())
         theta = {p.name: cal.params[p.name] for p in model.base_params()}

@@ -87,7 +87,7 @@ def detectable_chi2(dataset, truth) -> float:
     parameters with the true effects on; the base parameters are then fitted without effects,
     with the dataset's sds. NaN when there is no DEM effect or a run is missing."""
     from analysis.diagnose import BaseParameter, calibrate_base
-    from analysis.loop import _with_run_sd
+    from analysis.loop import fit_observations
     from analysis.open_model import BudgetError, OpenTwinModel
     from analysis.twin_model import candidates, dataset_observations, yield_times_of
     true = {k: v for k, v in truth_strengths(truth).items()
@@ -101,7 +101,7 @@ def detectable_chi2(dataset, truth) -> float:
                           progress=False).fit()
     except BudgetError:
         return float("nan")
-    obs = _with_run_sd(obs0, m)
+    obs = fit_observations(obs0, m)
     theta = dict(m.theta_ref, **{k: float(v) for k, v in (truth.get("base_config") or {}).items()
                                  if k in m.theta_ref})
     kin = truth.get("kinetics") or {}
