@@ -47,7 +47,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
                         yield_times_min=YIELD_TIMES_MIN, yield_sd_pct=1.0,
                         slope_pct_per_kj=None, intercept_pct=None, progress=True,
                         twin_seed=None, twin_v_rel_sd=None, twin_f_col_sd_hz=None,
-                        tracks="auto", track_noise_m=5e-6):
+                        tracks="auto", track_noise_m=5e-6, track_scale_sd=None):
     """Run the twin with ``effects`` at every condition and write a noisy measurement dataset.
 
     Parameters
@@ -79,6 +79,9 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         (the FAKE twin's have none)
     track_noise_m : sd of the white tracking noise added to x, y and jar_x [m] (5 um: the
         tracker's 0.01-0.04 px at ~0.1 mm/px, results/observe)
+    track_scale_sd : relative sd of each film's length scale (a camera calibrated on a
+        reference length is off by a fixed factor for the whole film); default the relative
+        sd floor the impact observables' lengths carry (analysis.flights.SD_FLOORS, 0.5 %)
 
     The twin runs only the DEM effects (kinetics effects act on the yields). The reported sd of
     v_mean and f_col is the measurement noise combined with the twin's own replicate scatter of
@@ -178,10 +181,16 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         have = all((root / str(r) / "trajectory.csv").is_file() for r in t["run_id"])
         if tracks == "auto" and not have:
             tracks = False
+        if track_scale_sd is None:
+            from analysis.flights import SD_FLOORS
+            track_scale_sd = SD_FLOORS["v_in_m_s"][1]
+        # its own stream: the scale draws leave the other noise of a seed as it was
+        rng_scale = np.random.default_rng([int(seed), 7])
         for cid, g in (t.groupby("condition_id", sort=False) if tracks else ()):
             tr = camera_track(root / str(g["run_id"].iloc[0]))
+            scale = 1.0 + track_scale_sd * rng_scale.standard_normal()
             for c in ("x_m", "y_m", "jar_x_m"):
-                tr[c] = tr[c] + track_noise_m * rng.standard_normal(len(tr))
+                tr[c] = scale * tr[c] + track_noise_m * rng.standard_normal(len(tr))
             track_tables[cid] = tr[["t_s", "x_m", "y_m", "jar_x_m"]]
             fl = run_flights(list(g["run_id"]), root).dropna()
             if len(fl):
@@ -202,6 +211,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
                             for cid, v, f in zip(ids, v_true, f_true)},
              "twin_flights": twin_flights,
              "track_noise_m": track_noise_m if track_tables else None,
+             "track_scale_sd": track_scale_sd if track_tables else None,
              "run_ids": list(t["run_id"])}
     tdir = Path(truth_dir or HIDDEN_TRUTH_DIR)
     tdir.mkdir(parents=True, exist_ok=True)

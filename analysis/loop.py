@@ -68,6 +68,11 @@ from analysis.twin_model import (candidates, dataset_observations, reference_par
 MAX_EFFECTS = 3
 #: re-anchorings of the model at a calibrated point beyond its measured responses
 MAX_REANCHOR = 2
+#: twin-corrected refits after the first twin rerun (each moved point gets its own rerun)
+MAX_POLISH = 2
+#: a twin-corrected refit that moves no parameter by more than this many of its standard
+#: errors ends the refits
+POLISH_TOL_SE = 0.5
 #: two candidates whose -2 log L gains differ by less than this are "about as good"
 TIE_DELTA_CHI2 = 2.0
 
@@ -149,6 +154,70 @@ def _base_params(model, theta, added):
         e = effs[name]
         out.append(BaseParameter(name, float(np.clip(s, e.lower, e.upper)), e.lower, e.upper))
     return out
+
+
+class _Corrected:
+    """The model shifted onto the twin's own means at the points it was rerun at:
+    predict(p) = model(p) + delta(p), delta_k = rerun(P_k) - model(P_k) at the last point,
+    and along the last move (P_k-1 -> P_k, in units of the fit's standard errors ``scale``)
+    the secant of the two deltas (a rank-one Broyden correction of the model's slope along
+    the direction it was wrong in). The model's error at P_k - the effects' responses were
+    measured at the anchor, not at the fitted base parameters, and are interpolated between
+    levels - is gone there. Keys the rerun does not predict (the priors) keep the model's."""
+
+    def __init__(self, model, points, scale, added):
+        self.w = _Wrapped(model, added)               # the strengths read from theta
+        self.scale = dict(scale)
+        self.names = list(self.scale)
+        self.pts, self.deltas = [], []
+        for p, pred in points:
+            at = self.w.predict(dict(p))
+            self.pts.append(np.array([p[k] for k in self.names], float))
+            self.deltas.append((pred.reindex(at.index) - at).fillna(0.0))
+        self.p = dict(points[-1][0])
+        self.step = None
+        if len(self.pts) >= 2:
+            d = (self.pts[-1] - self.pts[-2]) / np.array([self.scale[k] for k in self.names])
+            if float(d @ d) > 1.0:              # a secant over less than one se is noise
+                self.step = d / float(d @ d)
+
+    def predict(self, theta, effects=None):
+        p = dict(theta, **(effects or {}))
+        y = self.w.predict(p) + self.deltas[-1]
+        if self.step is not None:
+            x = np.array([p.get(k, v) for k, v in zip(self.names, self.pts[-1])], float)
+            t = float(((x - self.pts[-1]) / np.array([self.scale[k] for k in self.names]))
+                      @ self.step)
+            y = y + t * (self.deltas[-1] - self.deltas[-2])
+        return y
+
+    def fit(self, obs, rerun_se, start):
+        """Base parameters and added strengths refitted on the shifted model, its noise the
+        rerun mean's standard error (0 for the priors)."""
+        se = rerun_se.reindex(self.deltas[-1].index).fillna(0.0)
+        _, fit = calibrate_base(self.predict, obs, start, model_se=se)
+        return fit
+
+    def moved(self, fit) -> float:
+        """Largest move of a parameter from the last point, in its standard errors."""
+        out = 0.0
+        for k, v in self.p.items():
+            se = float(fit.stderr.get(k, np.nan))
+            if np.isfinite(se) and se > 0:
+                out = max(out, abs(float(fit.params[k]) - v) / se)
+        return out
+
+
+def _rerun_score(obs, pred, se, final, n_params) -> dict:
+    """chi2 of the data against a twin rerun's means (the priors' pseudo-observations at the
+    fit's values), sigma = hypot(measured sd, the rerun mean's se)."""
+    key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+    p = pred.reindex(key).to_numpy(float)
+    p = np.where(np.isfinite(p), p, final.prediction.reindex(key).to_numpy(float))
+    s = np.hypot(obs["sd"].to_numpy(float), se.reindex(key).fillna(0.0).to_numpy(float))
+    z = (p - obs["value"].to_numpy(float)) / s
+    return {"prediction": pd.Series(p, index=key), "z": pd.Series(z, index=key),
+            "chi2": float(np.nansum(z ** 2)), "dof": int(np.isfinite(z).sum()) - n_params}
 
 
 def _stage_row(stage, fit, n_params):
@@ -295,9 +364,62 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
             "last_fit": last_fit, "theta": theta, "null": nulls}
 
 
+def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
+                          max_refits=MAX_POLISH, tol_se=POLISH_TOL_SE, log=print) -> dict:
+    """Twin reruns at the fitted point and refits of the model shifted onto them.
+
+    ``rerun_fn(theta, added) -> (prediction, se, runs)`` runs the twin at base parameters
+    ``theta`` with the effects ``added`` on (its means and their standard errors per key).
+    The model's strengths come from responses measured at its anchor; at a fitted point away
+    from it the effects interact with the base parameters (a visco-elastic contact slows the
+    ball less at a higher restitution) and the levels are interpolated, so the fitted strength
+    is biased by the model's error there. Each refit shifts the model onto the rerun's means at
+    the current point (:class:`_Corrected`) and fits again; a point that moved by more than
+    ``tol_se`` standard errors is rerun and refitted, at most ``max_refits`` times. A slope
+    error of the model by a factor r leaves (1 - r) of the strength's error per refit.
+
+    Returns dict: 'final' (FitResult), 'theta', 'added', 'rerun' (the last rerun's score:
+    prediction, z, chi2, dof, runs of every rerun), 'refits' (one row per refit), 'stairs'
+    (staircase rows: 'twin-corrected [n]', 'twin rerun')."""
+    nb = len(theta)
+    theta, added = dict(theta), dict(added)
+    refits, stairs, runs, points = [], [], [], []
+    scale = {k: float(final.stderr.get(k, np.nan)) for k in list(theta) + list(added)}
+    scale = {k: v if np.isfinite(v) and v > 0 else 1.0 for k, v in scale.items()}
+    for it in range(max_refits + 1):
+        pred, se, r = rerun_fn(dict(theta), dict(added))
+        rr = _rerun_score(obs, pred, se, final, nb + len(added))
+        runs.append(pd.DataFrame(r).assign(rerun=it + 1))
+        rr["runs"] = pd.concat(runs, ignore_index=True)
+        if it == max_refits:
+            break
+        points.append((dict(theta, **added), pred))
+        corr = _Corrected(model, points, scale, added)
+        fit = corr.fit(obs, se, _base_params(model, theta, added))
+        moved = corr.moved(fit)
+        refits.append({"refit": it + 1, "moved_se": moved, "chi2_dof": fit.chi2_dof,
+                       **{k: float(fit.params[k]) for k in added}})
+        log("twin-corrected refit %d: %s (moved %.2f se), chi2/dof %.2f"
+            % (it + 1, _fmt_theta({k: fit.params[k] for k in list(theta) + list(added)}),
+               moved, fit.chi2_dof))
+        final = fit
+        theta = {k: float(fit.params[k]) for k in theta}
+        added = {k: float(fit.params[k]) for k in added}
+        stairs.append(_stage_row("twin-corrected" if it == 0 else "twin-corrected %d"
+                                 % (it + 1), fit, nb + len(added)))
+        if moved < tol_se:
+            break
+    stairs.append({"stage": "twin rerun", "chi2": rr["chi2"], "dof": rr["dof"],
+                   "chi2_dof": rr["chi2"] / max(rr["dof"], 1),
+                   "p_value": float(stats.chi2.sf(rr["chi2"], max(rr["dof"], 1))),
+                   "n_params": nb + len(added)})
+    return {"final": final, "theta": theta, "added": added, "rerun": rr, "refits": refits,
+            "stairs": stairs}
+
+
 def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicates=2,
              rerun=True, rerun_replicates=3, alpha=0.01, max_effects=MAX_EFFECTS,
-             max_reanchor=MAX_REANCHOR, budget_runs=None, base_config=None, runner=None,
+             max_reanchor=MAX_REANCHOR, max_polish=MAX_POLISH, budget_runs=None, base_config=None, runner=None,
              workers=2, backend="local", runs_dir=None, progress=True, scheduler=None,
              slurm=None, log=print, flights=True, track_cache=None,
              null_draws=20) -> LoopResult:
@@ -312,6 +434,9 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     rerun, rerun_replicates : the final twin rerun and its seeds per condition
     alpha : family-wise level of each diagnosis step (Bonferroni over the candidates)
     max_effects, max_reanchor : limits of the forward selection and of re-anchoring
+    max_polish : twin-corrected refits after the rerun (0: the rerun only scores the fit).
+        The model, shifted onto the rerun's means at the fitted point, is refitted; a point
+        that moves by more than ``POLISH_TOL_SE`` standard errors gets its own rerun
     budget_runs : most new twin runs the loop may start (None: no limit); checked before each
         build, nothing runs beyond it
     base_config : dict - run-config keys of every twin run (e.g. record_s, dt_s, a jar STL)
@@ -420,31 +545,24 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     diags, step_rows = fs["diagnoses"], fs["steps"]
     eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
 
-    # --- twin rerun at the final parameters
-    rr = None
+    # --- twin rerun at the final parameters, and the twin-corrected refits
+    rr, polish = None, []
     if rerun:
+        def rerun_fn(th, eff):
+            pred, se, rmodel = rerun_table(dataset, dict(model.theta_ref, **th), eff,
+                                           replicates=rerun_replicates, seed0=100,
+                                           sweep_kw=sweep_kw, base_config=base_config,
+                                           flight_ids=fl_ids, budget_runs=budget_left())
+            used["new"] += rmodel.n_new_
+            return pred, se, rmodel.runs_
+
         log("twin rerun at the final parameters (%d seeds per condition)" % rerun_replicates)
-        th_full = dict(model.theta_ref)
-        th_full.update(theta)
-        pred, se, rmodel = rerun_table(dataset, th_full, added,
-                                       replicates=rerun_replicates, seed0=100,
-                                       sweep_kw=sweep_kw, base_config=base_config,
-                                       flight_ids=fl_ids, budget_runs=budget_left())
-        key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
-        p = pred.reindex(key).to_numpy(float)
-        # the priors' pseudo-observations: the final parameters, as in the model's fit
-        p = np.where(np.isfinite(p), p, final.prediction.reindex(key).to_numpy(float))
-        s = np.hypot(obs["sd"].to_numpy(float),
-                     se.reindex(key).fillna(0.0).to_numpy(float))
-        z = (p - obs["value"].to_numpy(float)) / s
-        chi2 = float(np.nansum(z ** 2))
-        dof = int(np.isfinite(z).sum()) - nb - len(added)
-        rr = {"prediction": pd.Series(p, index=key), "z": pd.Series(z, index=key),
-              "chi2": chi2, "dof": dof, "runs": rmodel.runs_}
-        stair.append({"stage": "twin rerun", "chi2": chi2, "dof": dof,
-                      "chi2_dof": chi2 / max(dof, 1),
-                      "p_value": float(stats.chi2.sf(chi2, max(dof, 1))),
-                      "n_params": nb + len(added)})
+        tc = twin_corrected_refits(model, obs, theta, added, final, rerun_fn,
+                                   max_refits=max_polish, log=log)
+        final, theta, added, rr, polish = (tc["final"], tc["theta"], tc["added"], tc["rerun"],
+                                           tc["refits"])
+        stair += tc["stairs"]
+        eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
     staircase = pd.DataFrame(stair)
 
     # --- tables
@@ -482,7 +600,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             "new_runs": used["new"], "wall_s": time.time() - t_start,
             "flight_conditions": fl_ids, "alpha": alpha,
             "tracking": None if tracking is None else tracking.to_dict("records"),
-            "bootstrap": fs["null"],
+            "bootstrap": fs["null"], "twin_corrected": polish,
             "beyond_model": out}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
@@ -703,6 +821,10 @@ def main(argv=None):
     ap.add_argument("--no-rerun", action="store_true", help="skip the final twin rerun")
     ap.add_argument("--rerun-replicates", type=int, default=3,
                     help="seeds per condition of the final twin rerun")
+    ap.add_argument("--max-refits", type=int, default=MAX_POLISH,
+                    help="twin-corrected refits after the rerun: the model shifted onto the "
+                    "rerun's means at the fitted point and refitted; a point that moves gets "
+                    "its own rerun (0: the rerun only scores the fit)")
     ap.add_argument("--alpha", type=float, default=0.01,
                     help="family-wise significance level of each diagnosis step")
     ap.add_argument("--null-draws", type=int, default=20,
@@ -755,10 +877,13 @@ def main(argv=None):
             return 0
         if a.max_reanchor < 0:
             raise ValueError("--max-reanchor must be >= 0, got %d" % a.max_reanchor)
+        if a.max_refits < 0:
+            raise ValueError("--max-refits must be >= 0, got %d" % a.max_refits)
         if a.null_draws < 0:
             raise ValueError("--null-draws must be >= 0, got %d" % a.null_draws)
         res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
                        null_draws=a.null_draws, max_reanchor=a.max_reanchor,
+                       max_polish=a.max_refits,
                        rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                        alpha=a.alpha, max_effects=a.max_effects, budget_runs=a.budget_runs,
                        base_config=base_config, runner=runner, workers=a.workers,

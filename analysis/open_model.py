@@ -323,6 +323,7 @@ class OpenTwinModel(TwinModel):
                 for c in FLIGHT_OBSERVABLES:
                     runs.loc[at, c] = fl[c].to_numpy(float)
         self.runs_ = runs
+        self.n_new_ = int(ps["new"])
         self.n_known_ = int((~todo).sum())
         self.build_s_ = time.time() - t0
         self.stage_ = stage

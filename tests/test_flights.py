@@ -202,3 +202,33 @@ def test_cli(exact, tmp_path, capsys):
     tr.drop(columns="jar_x_m").to_csv(p, index=False)
     assert main([str(p), "--frequency-hz", "25"]) == 2
     assert "jar_x_m" in capsys.readouterr().err
+
+
+def test_end_stratified_se_matches_the_scatter_between_records():
+    """Records whose two ends differ systematically (one end clean, the other with a share of
+    slow double hits): the se stated for one record's median v_in, median e and mean phase
+    matches the sd of those values over independent records (within 30 %), where the
+    pooled-sample formula overstates it."""
+    from analysis.flights import _end_bootstrap_se, _median_se
+    rng = np.random.default_rng(42)
+    vals, ses, pooled = [], [], []
+    for _ in range(300):
+        ends = np.tile([1, -1], 13)
+        n_p = int(np.sum(ends > 0))
+        vin = np.where(ends < 0, 3.5 + 0.05 * rng.standard_normal(ends.size),
+                       np.where(rng.random(ends.size) < 0.3, rng.uniform(0.5, 3.0, ends.size),
+                                3.45 + 0.05 * rng.standard_normal(ends.size)))
+        e = np.where(ends < 0, 0.22, 0.235) + 0.015 * rng.standard_normal(ends.size)
+        ph = np.where(ends < 0, 2.6, 2.3) + 0.08 * rng.standard_normal(ends.size)
+        z = np.exp(1j * ph)
+        zm = z.mean()
+        se_e, se_v, se_ph = _end_bootstrap_se(ends, e, vin, z, zm)
+        vals.append([np.median(e), np.median(vin), np.angle(zm)])
+        ses.append([se_e, se_v, se_ph])
+        pooled.append([_median_se(e), _median_se(vin)])
+        assert n_p == 13
+    sd = np.std(vals, axis=0, ddof=1)
+    rms = np.sqrt(np.mean(np.square(ses), axis=0))
+    ratio = sd / rms
+    assert np.all((ratio > 0.7) & (ratio < 1.3)), ratio
+    assert np.sqrt(np.mean(np.square(pooled), axis=0))[1] > 1.15 * sd[1]  # the old formula
