@@ -75,3 +75,30 @@ def test_blind_kinetics_effect_at_new_conditions(tmp_path):
     # the truth (1426 +- 84 J for 1100 J) - a known miss of the interval, kept visible here
     assert abs(d.loc["induction_period", "strength"] / 1100.0 - 1.0) < 0.4, info
     assert not bool(d.loc["air_drag", "significant"]), info
+
+
+def test_blind_case_generators_draw_what_they_say():
+    """The suite's case lists: one-effect cases cycle the hidden effects with strengths inside
+    their fraction of each range; two-effect cases hold two different hidden effects each,
+    every pair in turn; base parameters within one response step of the anchor; no decoy
+    ever hidden; the same call gives the same cases (seeded)."""
+    from itertools import combinations
+    from analysis.open_model import BASE_STEPS
+    from analysis.studies import open_world_data as owd
+    from analysis.twin_model import DECOYS, candidates, reference_parameters
+    cands, ref = candidates("dem"), reference_parameters()
+    one, two = owd.effect_cases(8), owd.pair_cases(6)
+    assert owd.pair_cases(6) == two
+    for cases, frac, n_eff in ((one, owd.EFFECT_FRACTION, 1), (two, owd.PAIR_FRACTION, 2)):
+        for spec, seed, base in cases.values():
+            assert len(spec) == n_eff and not set(spec) & set(DECOYS)
+            assert set(spec) <= set(owd.HIDDEN_EFFECTS)
+            for name, params in spec.items():
+                c = cands[name]
+                s = c.strength_of(float(params[c.param])) / c.s_max
+                assert frac[0] - 0.01 <= s <= frac[1] + 0.01, (name, s)
+            for p, v in base.items():
+                assert abs(v - ref[p]) <= BASE_STEPS[p] + 1e-9
+    assert {tuple(sorted(s)) for s, _, _ in two.values()} == {
+        tuple(sorted(p)) for p in combinations(owd.HIDDEN_EFFECTS, 2)}
+    assert len({seed for _, seed, _ in list(one.values()) + list(two.values())}) == 14

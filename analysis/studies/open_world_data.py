@@ -104,6 +104,31 @@ def effect_cases(n):
     return out
 
 
+#: hidden strengths of the two-effect cases, as fractions of each candidate's range
+PAIR_FRACTION = (0.5, 0.9)
+
+
+def pair_cases(n):
+    """``n`` two-effect cases pair_p00 .. : the pairs of :data:`HIDDEN_EFFECTS` in turn (6
+    pairs), each strength drawn uniformly in :data:`PAIR_FRACTION` of its range (seeded by k),
+    base parameters from the calibration posterior (draw 500 + k), twin seeds 500 + k."""
+    from itertools import combinations
+    from analysis.twin_model import candidates
+    cands = candidates("dem")
+    pairs = list(combinations(HIDDEN_EFFECTS, 2))
+    out = {}
+    for k in range(int(n)):
+        rng = np.random.default_rng(5000 + k)
+        spec = {}
+        for name in pairs[k % len(pairs)]:
+            c = cands[name]
+            s = c.spec(float("%.3g" % (rng.uniform(*PAIR_FRACTION) * c.s_max)))
+            spec.update({e: {q: float("%.4g" % v) for q, v in ps.items()}
+                         for e, ps in s.items()})
+        out["pair_p%02d" % k] = (spec, 500 + k, posterior_draw(500 + k))
+    return out
+
+
 def make(name, out_dir=OUT_DIR, workers=2, runner=None, conditions=CONDITIONS,
          base=OFF_ANCHOR, case=None):
     """Write dataset ``name`` of :data:`CASES` (or ``case`` = (effects, seed[, base])) into
@@ -176,11 +201,15 @@ def main(argv=None):
     ap.add_argument("--effects", type=int, default=0,
                     help="also write this many one-effect datasets eff_pNN (effect and "
                     "strength drawn, base parameters from the calibration posterior)")
+    ap.add_argument("--pairs", type=int, default=0,
+                    help="also write this many two-effect datasets pair_pNN (pairs of hidden "
+                    "effects in turn, strengths drawn, base parameters from the posterior)")
     a = ap.parse_args(argv)
     for name in [c for c in (a.only or sorted(CASES)) if c != "none"]:
         ds, truth = make(name, a.out, a.workers)
         print("wrote %s (truth %s)" % (ds, truth))
-    for name, case in {**null_cases(a.nulls), **effect_cases(a.effects)}.items():
+    for name, case in {**null_cases(a.nulls), **effect_cases(a.effects),
+                       **pair_cases(a.pairs)}.items():
         ds, truth = make(name, a.out, a.workers, case=case)
         print("wrote %s (truth %s)" % (ds, truth))
     for name in (a.films if a.films is not None else ["visco"]):
