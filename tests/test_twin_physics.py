@@ -217,3 +217,24 @@ def test_yade_batch_runs_a_parameter_table(tmp_path):
     m1 = json.loads((out1 / "meta.json").read_text())
     m2 = json.loads((out2 / "meta.json").read_text())
     assert m1["config"]["frequency_hz"] == 25.0 and m2["config"]["frequency_hz"] == 30.0
+
+
+def test_scene_profile_books_every_step_and_engine(tmp_path):
+    """The profiler of the real scene (yade_scripts/profile_scene.py): a short free run in a
+    jar at 25 Hz books every probed step to flight or contact, every engine of the scene has
+    a share, the shares of a state sum to 1, and the jar's facets (motion engine + Newton)
+    take most of a flight step."""
+    from analysis.bench.profile import profile_case, table
+    prof = profile_case({"protocol": "free", "dt_s": 5e-7, "frequency_hz": 25.0,
+                         "ball_start": "random", "record_s": 0.01, "seed": 3}, tmp_path)
+    assert prof["done"] and prof["error"] is None
+    booked = sum(prof["state_steps"].values())
+    assert prof["steps"] - 2 * prof["probe_steps"] <= booked <= prof["steps"]
+    t = table("short", prof)
+    fl = t[t["state"] == "flight"].set_index("engine")
+    for e in ("NewtonIntegrator", "HarmonicMotionEngine", "InteractionLoop", "sampler",
+              "contacts"):
+        assert e in fl.index and fl.loc[e, "share"] > 0
+    assert fl["share"].sum() == pytest.approx(1.0, abs=1e-9)
+    assert (fl.loc["NewtonIntegrator", "share"] + fl.loc["HarmonicMotionEngine", "share"]) > 0.5
+    assert (fl["calls"] >= 0).all()
