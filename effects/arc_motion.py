@@ -63,6 +63,7 @@ def arc_pose(phase_rad, amplitude_m, curvature_1_m):
 
 
 class Effect(base.Effect):
+    needs_lab_frame = True             # it moves the jar itself
     engine = None
     vertical = None
 

@@ -26,6 +26,12 @@ class _Declared(object):
 class Effect(_Declared):
     """One switched-on DEM effect with validated parameters ``self.params`` (a dict).
 
+    ``needs_lab_frame``: True for an effect that moves, tilts or deforms the jar (it works on
+    ``twin.motion`` or the facets): the scene then runs in the lab frame. An effect that acts on
+    the ball and its contacts only may run in the jar frame, where ``twin.motion`` is None, the
+    facets never move and ``twin.jar_ids``' velocity is zero (a velocity relative to the jar
+    is then the ball's own).
+
     Hooks (all optional; ``twin`` is the scene object of yade_scripts/mill.py: ``twin.cfg``,
     ``twin.ball_id``, ``twin.jar_ids``, ``twin.motion`` (HarmonicMotionEngine), ``twin.mass``,
     ``twin.r``, ``twin.dt``, ``twin.f_now``, ``twin.phase_at(t)``, ``twin.jar_x()``):
@@ -40,6 +46,8 @@ class Effect(_Declared):
       this ball-facet interaction within an event (also facets reached later in the event).
     """
 
+
+    needs_lab_frame = False
 
     def setup(self, twin):
         pass

@@ -74,6 +74,7 @@ def oscillator_step(u, du, h, omega, zeta, base_acc, impulse_per_mass, n_sub):
 
 
 class Effect(base.Effect):
+    needs_lab_frame = True             # it moves the jar itself
     def setup(self, twin):
         from yade import O, TranslationEngine, Vector3
         self.active = self.params["f_n_hz"] < RIGID_F_N_HZ

@@ -44,12 +44,14 @@ def assert_ball_inside(rec):
     assert (np.hypot(t["y_m"], t["z_m"]) <= rad + tol).all()
 
 
+@pytest.mark.parametrize("frame", ["lab", "jar"])
 @pytest.mark.parametrize("en, v0", [(0.11, 0.5), (0.11, 1.0), (0.11, 2.0), (0.11, 4.0), (0.7, 4.0)])
-def test_restitution_on_a_static_facet_wall(en, v0, tmp_path):
-    """A ball thrown along the axis at the flat end cap rebounds with en (within 1 %)."""
+def test_restitution_on_a_static_facet_wall(en, v0, frame, tmp_path):
+    """A ball thrown along the axis at the flat end cap rebounds with en (within 1 %), in both
+    frames the scene can be integrated in."""
     gap = 0.0212 - 0.0103
     cfg = dict(STILL, restitution=en, ball_init_pos_m=[0.0, 0.0, 0.0],
-               ball_init_vel_m_s=[v0, 0.0, 0.0])
+               ball_init_vel_m_s=[v0, 0.0, 0.0], frame=frame)
     # one flight to the cap, and for en = 0.7 the chain of bounces down to 0.5 m/s
     cfg["record_s"] = gap / v0 * 1.2 + (0.3 if en == 0.7 else 0.002)
     rec = run(cfg, tmp_path)
@@ -65,11 +67,12 @@ def test_restitution_on_a_static_facet_wall(en, v0, tmp_path):
     assert_ball_inside(rec)
 
 
-def test_kinetic_energy_is_conserved_without_dissipation(tmp_path):
+@pytest.mark.parametrize("frame", ["lab", "jar"])
+def test_kinetic_energy_is_conserved_without_dissipation(frame, tmp_path):
     """en = 1, no friction, no gravity, jar at rest: KE between contacts holds within 0.5 %."""
     cfg = dict(STILL, restitution=1.0, static_friction=0.0, rolling_friction=0.0,
                ball_init_pos_m=[0.0, 0.001, 0.0], ball_init_vel_m_s=[2.0, 0.6, 0.35],
-               record_s=0.1)
+               record_s=0.1, frame=frame)
     rec = run(cfg, tmp_path)
     t = rec.trajectory
     imp = rec.impacts
@@ -85,12 +88,15 @@ def test_kinetic_energy_is_conserved_without_dissipation(tmp_path):
     assert_ball_inside(rec)
 
 
-def test_jar_follows_the_harmonic_motion(tmp_path):
-    """x_jar = A sin(2 pi f t) about the start position (protocol 'free': no ramp)."""
+@pytest.mark.parametrize("frame", ["lab", "jar"])
+def test_jar_follows_the_harmonic_motion(frame, tmp_path):
+    """x_jar = A sin(2 pi f t) about the start position (protocol 'free': no ramp); in the jar
+    frame the recording restores it from the imposed motion."""
     A, f = 0.0135, 30.0
     cfg = {"protocol": "free", "amplitude_m": A, "frequency_hz": f, "ball_start": "center",
-           "record_s": 0.1}
+           "record_s": 0.1, "frame": frame}
     rec = run(cfg, tmp_path)
+    assert rec.meta["frame"] == frame
     t = rec.trajectory
     expect = A * np.sin(2 * np.pi * f * t["t_s"])
     assert np.max(np.abs(t["jar_x_m"] - expect)) < 1e-3 * A
@@ -121,9 +127,10 @@ def test_ramp_is_phase_continuous_and_collisions_are_2f_at_30_hz(tmp_path):
     assert_ball_inside(rec)
 
 
-def test_same_config_and_seed_give_identical_trajectories(tmp_path):
+@pytest.mark.parametrize("frame", ["lab", "jar"])
+def test_same_config_and_seed_give_identical_trajectories(frame, tmp_path):
     cfg = {"protocol": "free", "amplitude_m": 0.0135, "frequency_hz": 25.0, "ball_start": "random",
-           "seed": 7, "record_s": 0.08}
+           "seed": 7, "record_s": 0.08, "frame": frame}
     a = run_twin(cfg, runs_dir=tmp_path / "a")
     b = run_twin(cfg, runs_dir=tmp_path / "b")
     assert (a / "trajectory.csv").read_bytes() == (b / "trajectory.csv").read_bytes()
@@ -238,3 +245,40 @@ def test_scene_profile_books_every_step_and_engine(tmp_path):
     assert fl["share"].sum() == pytest.approx(1.0, abs=1e-9)
     assert (fl.loc["NewtonIntegrator", "share"] + fl.loc["HarmonicMotionEngine", "share"]) > 0.5
     assert (fl["calls"] >= 0).all()
+
+
+def test_jar_frame_reproduces_the_lab_frame_run(tmp_path):
+    """One short run at 25 Hz from the same start in both frames: the jar frame (static facets,
+    the inertial force -m a_jar on the ball, the recording restored to the lab) follows the
+    lab frame's trajectory to 1e-7 m and 1e-5 m/s through its first impacts (before the
+    chaos separates them), with the same impacts; the lab frame's run id is the one configs
+    without ``frame`` had."""
+    cfg = {"protocol": "free", "dt_s": 5e-7, "frequency_hz": 25.0, "ball_start": "random",
+           "record_s": 0.03, "seed": 3}
+    lab = run(dict(cfg, frame="lab"), tmp_path)
+    jar = run(dict(cfg, frame="jar"), tmp_path)
+    assert (lab.meta["frame"], jar.meta["frame"]) == ("lab", "jar")
+    assert twin_config.run_id(dict(cfg, frame="lab")) == twin_config.run_id(cfg)
+    assert twin_config.run_id(dict(cfg, frame="jar")) != twin_config.run_id(cfg)
+    a, b = lab.trajectory, jar.trajectory
+    assert len(a) == len(b)
+    assert np.max(np.abs(b["x_m"] - a["x_m"])) < 1e-7
+    assert np.max(np.abs(b["vx_m_s"] - a["vx_m_s"])) < 1e-5
+    assert np.max(np.abs(b["jar_x_m"] - a["jar_x_m"])) < 1e-7
+    assert len(lab.impacts) == len(jar.impacts) >= 1
+    assert np.allclose(jar.impacts["vn_in_m_s"], lab.impacts["vn_in_m_s"], rtol=1e-3)
+    assert np.allclose(jar.impacts["x_contact_jar_m"], lab.impacts["x_contact_jar_m"],
+                       atol=1e-6)
+
+
+def test_effects_that_move_the_jar_keep_the_lab_frame(tmp_path):
+    """'auto' runs arc motion in the lab frame and a contact effect in the jar frame; 'jar'
+    with an effect that moves the jar is refused with one error naming it."""
+    cfg = {"protocol": "free", "frequency_hz": 25.0, "ball_start": "center", "record_s": 0.005,
+           "frame": "auto"}
+    rec = run(dict(cfg, effects={"arc_motion": {"curvature_1_m": 5.0}}), tmp_path)
+    assert rec.meta["frame"] == "lab"
+    rec = run(dict(cfg, effects={"viscoelastic_restitution": {"k": 0.3}}), tmp_path)
+    assert rec.meta["frame"] == "jar"
+    with pytest.raises(TwinRunError, match="arc_motion"):
+        run(dict(cfg, frame="jar", effects={"arc_motion": {"curvature_1_m": 5.0}}), tmp_path)

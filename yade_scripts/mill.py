@@ -65,11 +65,15 @@ from yade import O, utils  # noqa: E402
 from yade.wrapper import (FrictMat, ForceResetter, InsertionSortCollider, Bo1_Sphere_Aabb,  # noqa: E402
                           Bo1_Facet_Aabb, InteractionLoop, Ig2_Facet_Sphere_ScGeom,
                           Ip2_FrictMat_FrictMat_MindlinPhys, Law2_ScGeom_MindlinPhys_Mindlin,
-                          HarmonicMotionEngine, NewtonIntegrator, PyRunner)
+                          HarmonicMotionEngine, HarmonicForceEngine, NewtonIntegrator,
+                          PyRunner)
 from yade.minieigenHP import Vector3  # noqa: E402
 
 JAR_MASK = 2
 BALL_MASK = 3
+#: NewtonIntegrator's mask in the jar frame: the ball (3 & 1) is integrated, the static facets
+#: (2 & 1 = 0) are skipped - Newton's pass over the jar's facets was half of a lab-frame step
+NEWTON_JAR_FRAME_MASK = 1
 #: YADE's Ig2_Facet_Sphere_ScGeom(hertzian=True) gives the facet this radius, in ball radii.
 HERTZIAN_FACET_RADIUS_FACTOR = 1e8
 TRAJ_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s",
@@ -271,6 +275,7 @@ class Twin(object):
         self.cyl_contact_time = 0.0
         self.error = None
         self.done = False
+        self.frame = resolve_frame(cfg, self.effects)
         self._build(tri)
         for e in self.effects:  # effects may add engines or change the motion (effects/)
             e.setup(self)
@@ -316,8 +321,16 @@ class Twin(object):
         # |Fn| = 100 N, so the rolling moment behaves as a constant-torque (EDEM-like) model
         krot = cfg["rolling_friction"] * self.r * 100.0 / 1e-2 if cfg["rolling_friction"] > 0 else 0.0
         self.law = Law2_ScGeom_MindlinPhys_Mindlin(includeMoment=cfg["rolling_friction"] > 0)
-        self.motion = HarmonicMotionEngine(ids=self.jar_ids, A=Vector3(self.A, 0, 0),
-                                           f=Vector3(0, 0, 0), fi=Vector3(0, 0, 0))
+        if self.frame == "lab":
+            self.motion = HarmonicMotionEngine(ids=self.jar_ids, A=Vector3(self.A, 0, 0),
+                                               f=Vector3(0, 0, 0), fi=Vector3(0, 0, 0))
+            drive = self.motion
+        else:
+            # jar frame: the facets stay put; the ball feels -m a_jar(t) (set_frequency)
+            self.motion = None
+            self.inertial = HarmonicForceEngine(ids=[self.ball_id], A=Vector3(0, 0, 0),
+                                                f=Vector3(0, 0, 0), fi=Vector3(0, 0, 0))
+            drive = self.inertial
         self.phi0 = 0.0            # phase at t_phi0
         self.t_phi0 = 0.0
         self.f_now = 0.0
@@ -339,8 +352,9 @@ class Twin(object):
                             [Ip2_FrictMat_FrictMat_MindlinPhys(en=self.en_yade, eta=eta,
                                                                krot=krot)],
                             [self.law]),
-            self.motion,
-            NewtonIntegrator(gravity=Vector3(0, 0, -cfg["gravity_m_s2"]), damping=0.0),
+            drive,
+            NewtonIntegrator(gravity=Vector3(0, 0, -cfg["gravity_m_s2"]), damping=0.0,
+                             mask=NEWTON_JAR_FRAME_MASK if self.frame == "jar" else 0),
             self.sampler,
             self.monitor,
         ]
@@ -350,8 +364,22 @@ class Twin(object):
 
     # -- jar motion --
     def jar_x(self):
-        """Jar displacement from its rest position along x [m]."""
-        return O.bodies[self.jar_ids[0]].state.pos[0] - self.jar_x0
+        """Jar displacement from its rest position along x [m], in the lab, after the step
+        (lab frame: the facets' integrated motion; jar frame: the imposed A sin phi)."""
+        if self.frame == "lab":
+            return O.bodies[self.jar_ids[0]].state.pos[0] - self.jar_x0
+        return self.A * math.sin(self.phase_at(O.time + self.dt))
+
+    def jar_v(self):
+        """Jar velocity along x [m/s] in the lab over the step (lab frame: the facets'; jar
+        frame: the imposed A w cos phi at mid-step, as the lab frame's engine sets it)."""
+        if self.frame == "lab":
+            return O.bodies[self.jar_ids[0]].state.vel[0]
+        return self.A * 2 * math.pi * self.f_now * math.cos(self.phase_at(O.time + 0.5 * self.dt))
+
+    def sim_jar_x(self):
+        """Jar displacement in the frame the scene is integrated in (0 in the jar frame)."""
+        return self.jar_x() if self.frame == "lab" else 0.0
 
     def phase_at(self, t):
         return self.phi0 + 2 * math.pi * self.f_now * (t - self.t_phi0)
@@ -360,12 +388,24 @@ class Twin(object):
         """Change the engine's frequency keeping the jar's phase continuous (O.time-safe)."""
         t = O.time
         phi = self.phase_at(t)
+        w_old = 2 * math.pi * self.f_now
         self.phi0, self.t_phi0, self.f_now = phi, t, f
         w = 2 * math.pi * f
-        # engine velocity -A w sin(w t + fi) must equal A w cos(phi(t + dt/2)) (mid-step)
-        fi = phi + w * (0.5 * self.dt - t) - 0.5 * math.pi
-        self.motion.f = Vector3(f, 0, 0)
-        self.motion.fi = Vector3(fi, 0, 0)
+        if self.frame == "lab":
+            # engine velocity -A w sin(w t + fi) must equal A w cos(phi(t + dt/2)) (mid-step)
+            fi = phi + w * (0.5 * self.dt - t) - 0.5 * math.pi
+            self.motion.f = Vector3(f, 0, 0)
+            self.motion.fi = Vector3(fi, 0, 0)
+        else:
+            # the lab frame's jar velocity jumps by A (w - w_old) cos phi at a change of
+            # frequency: the ball's velocity relative to the jar jumps the other way
+            ball = O.bodies[self.ball_id].state
+            kick = self.A * (w - w_old) * math.cos(phi + w * 0.5 * self.dt)
+            ball.vel = ball.vel - Vector3(kick, 0, 0)
+            # -m a_jar = m A w^2 sin(phi(t)) at the engine's time t: A_F sin(2 pi f t + fi)
+            self.inertial.A = Vector3(self.mass * self.A * w * w, 0, 0)
+            self.inertial.f = Vector3(f, 0, 0)
+            self.inertial.fi = Vector3(phi - w * t, 0, 0)
         for e in self.effects:
             e.on_frequency(self, f, phi, t)
 
@@ -376,9 +416,12 @@ class Twin(object):
             e.on_sample(self, t)
         s = O.bodies[self.ball_id].state
         jar_x = self.jar_x()
-        jar_v = O.bodies[self.jar_ids[0]].state.vel[0]
+        jar_v = self.jar_v()
         p, v, w = s.pos, s.vel, s.angVel
-        rel = (p[0] - jar_x, p[1], p[2])
+        rel = (p[0] - self.sim_jar_x(), p[1], p[2])
+        if self.frame == "jar":  # the recording is in the lab frame
+            p = Vector3(p[0] + jar_x, p[1], p[2])
+            v = Vector3(v[0] + jar_v, v[1], v[2])
         half = self.info["inner_length_m"] / 2.0
         rad = self.info["inner_diameter_m"] / 2.0
         tol = 0.25 * self.r
@@ -515,7 +558,7 @@ class Twin(object):
             if fmag > ev["fn_peak"]:
                 ev["fn_peak"] = fmag
                 ev["n_out"] = n0
-                ev["x_contact"] = cp0[0] - self.jar_x()
+                ev["x_contact"] = cp0[0] - self.sim_jar_x()
         for region in [r for r in self.events if r not in by_region]:
             ev = self.events.pop(region)
             if self.phase == "record":
@@ -596,6 +639,19 @@ def git_commit():
 def yade_version():
     import yade.config
     return getattr(yade.config, "version", "unknown")
+
+
+def resolve_frame(cfg, effects):
+    """'lab' or 'jar' for a config's ``frame`` and its effects ('auto': the jar frame unless
+    an effect needs the lab frame). ConfigError for 'jar' with such an effect."""
+    lab_only = [e.name for e in effects if getattr(e, "needs_lab_frame", False)]
+    frame = cfg.get("frame", "lab")
+    if frame == "auto":
+        return "lab" if lab_only else "jar"
+    if frame == "jar" and lab_only:
+        raise ConfigError("frame 'jar' cannot run effect(s) %s: they move the jar itself (use "
+                          "frame 'lab' or 'auto')" % ", ".join(lab_only))
+    return frame
 
 
 def group_collisions(impacts, frequency_hz):
@@ -711,6 +767,7 @@ def _write_files(twin, tmp, wall_s, steps):
         "en_yade": twin.en_yade,
         "restitution_scratch_check": twin.en_check,
         "protocol": cfg["protocol"],
+        "frame": twin.frame,
         "effects": [e.describe() for e in twin.effects],
         "steady": twin.steady,
         "summary": summary,

@@ -78,7 +78,17 @@ PARAMETERS = {
                                  "configured restitution (removes the integrator's O(dt) loss)"),
     "seed": (0, 0, 2**31 - 1, "-", "numerical", "seed of the ball's random start position"),
     "max_wall_s": (1800.0, 1.0, 1e6, "s", "numerical", "a run longer than this is aborted"),
+    "frame": ("lab", None, None, "-", "numerical",
+              "frame the scene is integrated in: 'lab' (the jar's facets moved by the harmonic "
+              "motion), 'jar' (static facets, the inertial force -m a_jar(t) on the ball, "
+              "recordings restored to the lab frame; only for effects that keep the jar rigid "
+              "and translating), 'auto' ('jar' where the effects allow it, else 'lab'). The "
+              "default 'lab' leaves the run id of older configs unchanged"),
 }
+
+#: keys left out of the run id's hash at these values (added after runs were cached under
+#: ids that did not hold them)
+HASH_NEUTRAL = {"frame": "lab"}
 
 #: Keys holding a choice from a fixed set.
 CHOICES = {
@@ -86,6 +96,7 @@ CHOICES = {
     "protocol": ("mill", "free"),
     "stl_units": ("auto", "m", "mm"),
     "facet_contact": ("flat", "yade_default"),
+    "frame": ("lab", "jar", "auto"),
 }
 
 #: Keys that are not plain floats.
@@ -189,6 +200,9 @@ def resolve_stl(cfg, root=None):
 def run_id(cfg, root=None):
     """Hash of the complete config and of the STL bytes: 16 hex characters."""
     full = complete_config(cfg)
+    for k, v in HASH_NEUTRAL.items():
+        if full.get(k) == v:
+            del full[k]
     h = hashlib.sha256()
     h.update(json.dumps(full, sort_keys=True, separators=(",", ":")).encode())
     stl = resolve_stl(full, root)
