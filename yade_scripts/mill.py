@@ -777,6 +777,20 @@ def _write_files(twin, tmp, wall_s, steps):
     return meta
 
 
+def step_until_done(twin, n_max):
+    """Run at most ``n_max`` steps until the record is complete or the run failed.
+
+    The steps are driven from this thread (``O.step``) rather than by ``O.run``: the
+    PyRunners (sampler, contact monitor) then run in the thread that holds Python, and the
+    hand-over of the interpreter between YADE's simulation thread and this one - about
+    30-50 us per call, most of a contact check - is saved. The engines, and so the results,
+    are the same step for step."""
+    step = O.step
+    end = O.iter + n_max
+    while not twin.done and twin.error is None and O.iter < end:
+        step()
+
+
 def run(cfg, out_dir):
     tri, info = load_jar(cfg)
     effects = load_effects(cfg["effects"], side="dem")  # ConfigError on unknown names/params
@@ -788,7 +802,7 @@ def run(cfg, out_dir):
              if cfg["protocol"] == "mill" else cfg["record_s"] + 1.0)
     wall0 = time.time()
     it0 = O.iter
-    O.run(int(t_max / cfg["dt_s"]) + 10, True)
+    step_until_done(twin, int(t_max / cfg["dt_s"]) + 10)
     wall = time.time() - wall0
     if twin.error:
         raise RunFailure(twin.error)

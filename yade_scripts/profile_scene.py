@@ -84,7 +84,7 @@ def main(argv=None):
              if cfg["protocol"] == "mill" else cfg["record_s"] + 1.0)
     wall0 = time.time()
     it0 = O.iter
-    O.run(int(t_max / cfg["dt_s"]) + 10, True)
+    mill.step_until_done(twin, int(t_max / cfg["dt_s"]) + 10)
     wall = time.time() - wall0
     out = {"config": cfg, "dt_s": cfg["dt_s"], "steps": O.iter - it0, "wall_s": wall,
            "n_facets": info["n_facets"], "probe_s": probe.own_s, "probe_steps": PROBE_STEPS,
