@@ -50,6 +50,15 @@ def lab_configs(lab_dir=LAB_RUNS):
 
 
 def compare(lab: pd.DataFrame, jar: pd.DataFrame) -> pd.DataFrame:
+    """Per condition: the two frames' 3-seed means and z = difference / se, the se from the
+    replicate variance pooled over every condition and both frames (32 degrees of freedom:
+    a 3-seed sd of its own would make z a t with 4 dof, whose mean square is 2, not 1)."""
+    both = pd.concat([lab.assign(frame="lab"), jar.assign(frame="jar")], ignore_index=True)
+    pooled = {}
+    for c in COMPARED:
+        g = both.groupby(["condition_id", "frame"])[c]
+        dof = (g.count() - 1).clip(lower=0)
+        pooled[c] = float((g.var(ddof=1).fillna(0.0) * dof).sum() / max(dof.sum(), 1))
     rows = []
     for cid, g in lab.groupby("condition_id", sort=False):
         h = jar[jar["condition_id"] == cid]
@@ -60,9 +69,9 @@ def compare(lab: pd.DataFrame, jar: pd.DataFrame) -> pd.DataFrame:
             a, b = g[c].dropna().to_numpy(float), h[c].dropna().to_numpy(float)
             row[c + "_lab"] = a.mean() if len(a) else np.nan
             row[c + "_jar"] = b.mean() if len(b) else np.nan
-            se = math.sqrt((a.var(ddof=1) / len(a) if len(a) > 1 else 0.0)
-                           + (b.var(ddof=1) / len(b) if len(b) > 1 else 0.0))
+            se = math.sqrt(pooled[c] * (1.0 / max(len(a), 1) + 1.0 / max(len(b), 1)))
             row[c + "_z"] = (row[c + "_jar"] - row[c + "_lab"]) / se if se > 0 else np.nan
+            row[c + "_run_sd"] = math.sqrt(pooled[c])
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -104,7 +113,8 @@ def main(argv=None):
     wl, wj = wall_times(lab["run_id"]), wall_times(jar["run_id"])
     zs = np.concatenate([tab[c + "_z"].dropna().to_numpy() for c in COMPARED])
     lines = ["# Jar frame against lab frame, 8 paper conditions x 3 seeds", "",
-             "Per condition and observable: z = (jar mean - lab mean) / se (3 seeds each). "
+             "Per condition and observable: z = (jar mean - lab mean) / se (3 seeds each; the "
+             "run sd pooled over the 8 conditions and both frames). "
              "|z| > 2: %d of %d; mean z^2 %.2f (1 if the frames agree within the chaos)."
              % (int(np.sum(np.abs(zs) > 2)), zs.size, float(np.mean(zs ** 2))),
              "Motion modes equal at %d of %d conditions." % (
