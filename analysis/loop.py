@@ -183,7 +183,7 @@ class _Corrected:
 
     def predict(self, theta, effects=None):
         p = dict(theta, **(effects or {}))
-        y = self.w.predict(p) + self.deltas[-1]
+        y = self.w.predict(theta, effects) + self.deltas[-1]
         if self.step is not None:
             x = np.array([p.get(k, v) for k, v in zip(self.names, self.pts[-1])], float)
             t = float(((x - self.pts[-1]) / np.array([self.scale[k] for k in self.names]))
@@ -206,6 +206,23 @@ class _Corrected:
             if np.isfinite(se) and se > 0:
                 out = max(out, abs(float(fit.params[k]) - v) / se)
         return out
+
+
+class _ShiftedModel:
+    """A model whose predict is a :class:`_Corrected` one (shifted onto twin reruns at the
+    calibrated point); everything else - noise, effect resolution, parameters, effects -
+    is the model's. Diagnosis on it asks which effect is missing from the twin itself, not
+    from the model's approximation of it."""
+
+    def __init__(self, model, corrected):
+        self._model = model
+        self._corr = corrected
+
+    def predict(self, theta, effects=None):
+        return self._corr.predict(theta, effects)
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
 
 
 def _rerun_score(obs, pred, se, final, n_params) -> dict:
@@ -384,6 +401,7 @@ def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
     nb = len(theta)
     theta, added = dict(theta), dict(added)
     refits, stairs, runs, points = [], [], [], []
+    corr = None
     scale = {k: float(final.stderr.get(k, np.nan)) for k in list(theta) + list(added)}
     scale = {k: v if np.isfinite(v) and v > 0 else 1.0 for k, v in scale.items()}
     for it in range(max_refits + 1):
@@ -414,7 +432,7 @@ def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
                    "p_value": float(stats.chi2.sf(rr["chi2"], max(rr["dof"], 1))),
                    "n_params": nb + len(added)})
     return {"final": final, "theta": theta, "added": added, "rerun": rr, "refits": refits,
-            "stairs": stairs}
+            "stairs": stairs, "corrected": corr if refits else None}
 
 
 def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicates=2,
@@ -491,8 +509,21 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         from analysis.flights import FLIGHT_OBSERVABLES
         noise |= set(FLIGHT_OBSERVABLES)
 
+    def make_rerun_fn(model):
+        """rerun_fn(theta, added) of :func:`twin_corrected_refits`: the twin at the model's
+        other parameters with ``theta`` and the DEM effects of ``added`` on (fresh seeds)."""
+        def rerun_fn(th, eff):
+            pred, se, rmodel = rerun_table(dataset, dict(model.theta_ref, **th), eff,
+                                           replicates=rerun_replicates, seed0=100,
+                                           sweep_kw=sweep_kw, base_config=base_config,
+                                           flight_ids=fl_ids, budget_runs=budget_left())
+            used["new"] += rmodel.n_new_
+            return pred, se, rmodel.runs_
+        return rerun_fn
+
     def analyse(model):
-        """calibrate, forward selection, final joint fit on one model."""
+        """calibrate (and, with reruns, refit on the twin-corrected model), forward
+        selection, final joint fit on one model."""
         obs = fit_observations(obs0, model)
         baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
                                        model_se=model.model_se())
@@ -505,7 +536,26 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         theta = {p.name: cal.params[p.name] for p in model.base_params()}
         nb = len(model.base_params())
         stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
-        fs = forward_select(model, obs, theta, conditions=dataset.conditions, alpha=alpha,
+        diag_model, pre = model, []
+        if rerun and max_polish > 0:
+            # the twin itself at the calibrated point: the model shifted onto it (and the base
+            # parameters refitted there) is what diagnosis asks which effect is missing from -
+            # not the model's own error at an off-anchor point
+            log("twin rerun at the calibrated point (%d seeds per condition): diagnosis on the "
+                "twin-corrected model" % rerun_replicates)
+            tc0 = twin_corrected_refits(model, obs, theta, {}, cal, make_rerun_fn(model),
+                                        max_refits=max_polish, log=log)
+            if tc0["corrected"] is not None:
+                cal = tc0["final"]
+                theta = {k: float(cal.params[k]) for k in theta}
+                diag_model = _ShiftedModel(model, tc0["corrected"])
+            for row in tc0["stairs"]:
+                st = row["stage"]
+                row = dict(row, stage="twin rerun (calibrated)" if st == "twin rerun"
+                           else st.replace("twin-corrected", "calibrated, twin-corrected"))
+                stair.append(row)
+            pre = tc0["refits"]
+        fs = forward_select(diag_model, obs, theta, conditions=dataset.conditions, alpha=alpha,
                             max_effects=max_effects, noise_observables=noise, log=log,
                             null_draws=null_draws)
         added, last_fit, theta = fs["added"], fs["last_fit"], fs["theta"]
@@ -513,7 +563,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         # final joint fit (all added strengths with the base): strengths and their se
         final = last_fit if last_fit is not None else cal
         if added:
-            w = _Wrapped(model, added, theta)
+            w = _Wrapped(diag_model, added, theta)
             _, f2 = calibrate_base(w.predict, obs, _base_params(model, theta, added),
                                    model_se=w.model_se())
             if f2.objective <= last_fit.objective:
@@ -522,7 +572,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                 added[k] = float(final.params[k])
             theta = {k: float(final.params[k]) for k in theta}
         return dict(obs=obs, cal=cal, nb=nb, stair=stair, fs=fs, added=added, final=final,
-                    theta=theta)
+                    theta=theta, pre=pre)
 
     # --- build, analyse; re-anchor where the final point leaves the measured responses
     reanchors = []
@@ -548,16 +598,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     # --- twin rerun at the final parameters, and the twin-corrected refits
     rr, polish = None, []
     if rerun:
-        def rerun_fn(th, eff):
-            pred, se, rmodel = rerun_table(dataset, dict(model.theta_ref, **th), eff,
-                                           replicates=rerun_replicates, seed0=100,
-                                           sweep_kw=sweep_kw, base_config=base_config,
-                                           flight_ids=fl_ids, budget_runs=budget_left())
-            used["new"] += rmodel.n_new_
-            return pred, se, rmodel.runs_
-
         log("twin rerun at the final parameters (%d seeds per condition)" % rerun_replicates)
-        tc = twin_corrected_refits(model, obs, theta, added, final, rerun_fn,
+        tc = twin_corrected_refits(model, obs, theta, added, final, make_rerun_fn(model),
                                    max_refits=max_polish, log=log)
         final, theta, added, rr, polish = (tc["final"], tc["theta"], tc["added"], tc["rerun"],
                                            tc["refits"])
@@ -601,6 +643,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             "flight_conditions": fl_ids, "alpha": alpha,
             "tracking": None if tracking is None else tracking.to_dict("records"),
             "bootstrap": fs["null"], "twin_corrected": polish,
+            "twin_corrected_calibration": an["pre"],
             "beyond_model": out}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,

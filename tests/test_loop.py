@@ -455,3 +455,39 @@ def test_twin_corrected_refits_remove_the_models_interaction_bias():
     assert [s["stage"] for s in tc["stairs"]][-1] == "twin rerun"
     assert tc["stairs"][0]["stage"] == "twin-corrected"
     assert len(tc["rerun"]["runs"]) == len(calls)
+
+
+def test_diagnosis_on_the_twin_corrected_model_drops_a_false_alarm():
+    """No effect hidden, but the 'twin' differs from the model away from its anchor in a way
+    that looks like E1 (a curvature in frequency growing with a): the model alone names E1;
+    the same diagnosis on the model shifted onto a rerun at the calibrated point (what the
+    loop does before it diagnoses) names nothing, and its calibrated a is the truth."""
+    from analysis.diagnose import calibrate_base
+    m = ToyModel(se=0.002)
+    x2 = ((m.f - 26) / 6) ** 2
+
+    def twin(theta, eff):
+        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
+        y[:, 0] += 1.0 * x2 * (theta["a"] - 2.0)
+        return pd.Series(y.ravel(), index=m.keys)
+
+    rng = np.random.default_rng(5)
+    mu = twin({"a": 2.2, "b": 0.4}, {}).to_numpy()
+    obs = pd.DataFrame({"condition_id": m.keys.get_level_values(0),
+                        "observable": m.keys.get_level_values(1),
+                        "value": mu + 0.01 * rng.standard_normal(len(mu)), "sd": 0.01})
+    raw = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None)
+    assert "E1" in raw["added"]                                   # the model alone: false alarm
+    _, cal = calibrate_base(m.predict, obs, m.base_params(), model_se=m.model_se())
+    theta = {k: float(cal.params[k]) for k in ("a", "b")}
+    tc = loop.twin_corrected_refits(
+        m, obs, theta, {}, cal,
+        lambda th, eff: (twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()),
+        max_refits=3, log=lambda s: None)
+    assert tc["corrected"] is not None
+    fin = tc["final"]
+    assert abs(fin.params["a"] - 2.2) <= 3 * fin.stderr["a"]
+    shifted = loop._ShiftedModel(m, tc["corrected"])
+    fs = loop.forward_select(shifted, obs, {k: float(fin.params[k]) for k in ("a", "b")},
+                             log=lambda s: None)
+    assert fs["added"] == {}
