@@ -58,11 +58,13 @@ from scipy.signal import savgol_filter, savgol_coeffs
 
 from analysis import config
 
-#: Seed paper's camera (Chronos 1.4) frame rate [1/s].
-CAMERA_FPS = 2134.0
+#: Seed paper's camera (Chronos 1.4) frame rate [1/s] (declared with the run config)
+CAMERA_FPS = config.twin_config.CAMERA_FPS
 #: Steel density used when only a ball diameter is known [kg/m3] (Table 2).
 STEEL_DENSITY_KG_M3 = 7800.0
 TRACK_COLUMNS = ("t_s", "x_m", "y_m")
+#: the recording's columns this module reads (a subset of the schema declared once in
+#: yade_scripts/twin_config.py; tests/test_twin_runner.py checks it is one)
 TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "jar_x_m",
                       "jar_vx_m_s")
 IMPACT_COLUMNS = ("event_id", "t_start_s", "t_end_s", "where")

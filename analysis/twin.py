@@ -28,10 +28,9 @@ import pandas as pd
 
 from analysis.config import MILL_SCRIPT, REPO_ROOT, RUNS_DIR, twin_config
 
-TRAJECTORY_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s",
-                      "wx_rad_s", "wy_rad_s", "wz_rad_s", "jar_x_m", "jar_vx_m_s"]
-IMPACT_COLUMNS = ["event_id", "t_start_s", "t_end_s", "vn_in_m_s", "vt_in_m_s", "vn_out_m_s",
-                  "fn_peak_n", "e_diss_j", "where", "x_contact_jar_m", "n_facets", "collision_id"]
+#: the recording's columns (declared in yade_scripts/twin_config.py, which the scene imports)
+TRAJECTORY_COLUMNS = list(twin_config.TRAJECTORY_COLUMNS)
+IMPACT_COLUMNS = list(twin_config.IMPACT_COLUMNS)
 
 
 class TwinRunError(RuntimeError):

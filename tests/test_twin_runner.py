@@ -61,3 +61,17 @@ def test_invalid_config_fails_before_yade(tmp_path, monkeypatch):
 def test_cli_reports_bad_input(capsys):
     assert twin.main(["--frequency-hz", "-3"]) == 2
     assert "frequency_hz" in capsys.readouterr().err
+
+
+def test_recording_schema_is_declared_once():
+    """The scene, the run reader and the observer use the schema of yade_scripts/twin_config.py:
+    the reader's columns are it, the observer's a subset of it."""
+    from analysis import observe
+    assert twin.TRAJECTORY_COLUMNS == list(twin_config.TRAJECTORY_COLUMNS)
+    assert twin.IMPACT_COLUMNS == list(twin_config.IMPACT_COLUMNS)
+    assert set(observe.TRAJECTORY_COLUMNS) <= set(twin_config.TRAJECTORY_COLUMNS)
+    assert set(observe.IMPACT_COLUMNS) <= set(twin_config.IMPACT_COLUMNS)
+    assert observe.CAMERA_FPS == twin_config.CAMERA_FPS
+    src = (twin_config.repo_root() + "/yade_scripts/mill.py")
+    text = open(src).read()
+    assert "twin_config.TRAJECTORY_COLUMNS" in text and "twin_config.IMPACT_COLUMNS" in text

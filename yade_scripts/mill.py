@@ -76,10 +76,8 @@ BALL_MASK = 3
 NEWTON_JAR_FRAME_MASK = 1
 #: YADE's Ig2_Facet_Sphere_ScGeom(hertzian=True) gives the facet this radius, in ball radii.
 HERTZIAN_FACET_RADIUS_FACTOR = 1e8
-TRAJ_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s",
-                "wx_rad_s", "wy_rad_s", "wz_rad_s", "jar_x_m", "jar_vx_m_s"]
-IMPACT_COLUMNS = ["event_id", "t_start_s", "t_end_s", "vn_in_m_s", "vt_in_m_s", "vn_out_m_s",
-                  "fn_peak_n", "e_diss_j", "where", "x_contact_jar_m", "n_facets", "collision_id"]
+TRAJ_COLUMNS = list(twin_config.TRAJECTORY_COLUMNS)
+IMPACT_COLUMNS = list(twin_config.IMPACT_COLUMNS)
 
 
 class RunFailure(RuntimeError):

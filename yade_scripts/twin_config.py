@@ -16,6 +16,15 @@ import os
 #: Seed paper's camera frame rate (Chronos 1.4, 2134 frames/s).
 CAMERA_FPS = 2134.0
 
+#: The recording's schema (docs/reference.md, "Recording"), declared once for the scene that
+#: writes it and every reader: trajectory.csv's columns (lab frame) ...
+TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s",
+                      "wx_rad_s", "wy_rad_s", "wz_rad_s", "jar_x_m", "jar_vx_m_s")
+#: ... and impacts.csv's (one row per ball-wall contact event)
+IMPACT_COLUMNS = ("event_id", "t_start_s", "t_end_s", "vn_in_m_s", "vt_in_m_s", "vn_out_m_s",
+                  "fn_peak_n", "e_diss_j", "where", "x_contact_jar_m", "n_facets",
+                  "collision_id")
+
 # name: (default, lower, upper, unit, role, description)
 # role: 'operating' (what the user sets on the mill), 'material' (Table 2 constants),
 # 'contact' (calibrated), 'apparatus' (uncertain dimensions of the rig), 'numerical', 'protocol'.
