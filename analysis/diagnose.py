@@ -310,7 +310,7 @@ def model_se_from_predictions(predictions: pd.DataFrame) -> pd.Series:
     return pd.Series(se, index=pd.MultiIndex.from_frame(p[["condition_id", "observable"]]))
 
 
-class _Problem:
+class Problem:
     """Whitened least-squares problem around a black-box ``predict``."""
 
     def __init__(self, predict, observations, base_params, effects, model_se, fixed_effects,
@@ -621,13 +621,13 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         effects {name: strength} -> Series (condition_id, observable) of the model's extra
         standard error with those effects on (e.g. a signature library's interpolation error
         between its levels), added in quadrature to sigma in every fit with an effect; such a
-        fit maximises the Gaussian likelihood (see ``_Problem.fit``). None: none.
+        fit maximises the Gaussian likelihood (see ``Problem.fit``). None: none.
 
     Returns
     -------
     Diagnosis
     """
-    prob = _Problem(predict, observations, base_params, effects, model_se, fixed_effects,
+    prob = Problem(predict, observations, base_params, effects, model_se, fixed_effects,
                     base_step_frac, conditions, effect_se)
     theta0 = {p.name: p.value for p in prob.base}
     baseline = prob.stage(theta0)
@@ -909,7 +909,7 @@ def add_effect(predict, observations, base_params, effects, name: str, *, model_
     -------
     AddEffectResult : staircase of chi2/dof (baseline, calibrated, with <name>), before/after fits
     """
-    prob = _Problem(predict, observations, base_params, effects, model_se, fixed_effects,
+    prob = Problem(predict, observations, base_params, effects, model_se, fixed_effects,
                     base_step_frac, None, effect_se)
     if name not in prob.effects:
         raise ValueError("unknown effect %r (candidates: %s)" % (name, ", ".join(prob.effects)))
@@ -941,7 +941,7 @@ def calibrate_base(predict, observations, base_params, *, model_se=None,
     """(baseline, calibrated) FitResults: the model at the base parameters' starting values, and
     with the base parameters fitted (effects off, ``fixed_effects`` held) - the calibration step
     of :func:`diagnose` on its own, for a loop that re-anchors its model before it diagnoses."""
-    prob = _Problem(predict, observations, base_params, [], model_se, fixed_effects,
+    prob = Problem(predict, observations, base_params, [], model_se, fixed_effects,
                     base_step_frac, None, effect_se)
     theta0 = {p.name: p.value for p in prob.base}
     return prob.stage(theta0), prob.fit(theta0)

@@ -119,14 +119,14 @@ def truth_values(truth):
 def _truth_problem(prob, ds, truth):
     """A diagnose problem whose observations are the noise-free truth (sd and model noise as in
     the dataset's own problem)."""
-    from analysis.diagnose import _Problem, observations_from_dataset
+    from analysis.diagnose import Problem, observations_from_dataset
     obs = prob.get("observations")
     obs = (observations_from_dataset(ds) if obs is None else obs).copy()
     true = truth_values(truth)
     keep = [(c, o) in true for c, o in zip(obs["condition_id"], obs["observable"])]
     obs = obs[keep].reset_index(drop=True)
     obs["value"] = [true[(c, o)] for c, o in zip(obs["condition_id"], obs["observable"])]
-    return _Problem(prob["predict"], obs, prob["base_params"], prob["effects"],
+    return Problem(prob["predict"], obs, prob["base_params"], prob["effects"],
                     prob["model_se"], None, 1e-3, None)
 
 

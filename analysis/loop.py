@@ -237,6 +237,16 @@ def _rerun_score(obs, pred, se, final, n_params) -> dict:
             "chi2": float(np.nansum(z ** 2)), "dof": int(np.isfinite(z).sum()) - n_params}
 
 
+def joint_fit(model, obs, theta, added):
+    """The base parameters and the added effects' strengths fitted together on ``model``
+    (the strengths read from the parameters; the model's noise plus the effects' resolution
+    error): a FitResult."""
+    w = _Wrapped(model, added, theta)
+    _, fit = calibrate_base(w.predict, obs, _base_params(model, theta, added),
+                            model_se=w.model_se())
+    return fit
+
+
 def _stage_row(stage, fit, n_params):
     return {"stage": stage, "chi2": fit.chi2, "dof": fit.dof, "chi2_dof": fit.chi2_dof,
             "p_value": fit.p_value, "n_params": n_params}
@@ -563,9 +573,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         # final joint fit (all added strengths with the base): strengths and their se
         final = last_fit if last_fit is not None else cal
         if added:
-            w = _Wrapped(diag_model, added, theta)
-            _, f2 = calibrate_base(w.predict, obs, _base_params(model, theta, added),
-                                   model_se=w.model_se())
+            f2 = joint_fit(diag_model, obs, theta, added)
             if f2.objective <= last_fit.objective:
                 final = f2
             for k in added:

@@ -1153,7 +1153,7 @@ def read_sweep_config(path):
     return data
 
 
-def _kv(text):
+def parse_key_value(text):
     if "=" not in text:
         raise argparse.ArgumentTypeError("expected key=value, got %r" % text)
     k, v = text.split("=", 1)
@@ -1181,9 +1181,9 @@ def build_parser():
     p.add_argument("--runs-dir", help="parent of run folders (default results/runs)")
     p.add_argument("--retry-failed", action="store_true", help="re-run runs recorded as failed")
     p.add_argument("--runner", help="runner 'module:function' (default %s)" % DEFAULT_RUNNER)
-    p.add_argument("--runner-kw", action="append", type=_kv, default=[],
+    p.add_argument("--runner-kw", action="append", type=parse_key_value, default=[],
                    help="key=value bound to the runner (repeatable)")
-    p.add_argument("--set", action="append", type=_kv, default=[], dest="base",
+    p.add_argument("--set", action="append", type=parse_key_value, default=[], dest="base",
                    help="config key=value merged into every row (repeatable)")
     p.add_argument("--export-yade-table", metavar="FILE",
                    help="write the sweep as a yade-batch table and exit without running")

@@ -18,7 +18,7 @@ import sys
 import tempfile
 import time
 
-from analysis.sweep import SweepInputError, _kv, run_sweep
+from analysis.sweep import SweepInputError, parse_key_value, run_sweep
 
 
 def _configs(n, record_s, offset):
@@ -57,7 +57,7 @@ def main(argv=None):
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--runner", help="runner 'module:function' (default: real twin if yade "
                                     "is available, else the fake)")
-    p.add_argument("--runner-kw", action="append", type=_kv, default=[])
+    p.add_argument("--runner-kw", action="append", type=parse_key_value, default=[])
     p.add_argument("--fake", action="store_true", help="force the CPU-bound FAKE runner")
     p.add_argument("--cpu-s", type=float, default=2.0, help="fake runner: CPU s per run")
     p.add_argument("--n-runs", type=int, default=None,

@@ -32,9 +32,7 @@ OUT_DIR = RESULTS_DIR / "open_world" / "refits"
 
 def refit_one(name, loops_dir, datasets_dir, *, rerun_replicates=3, max_refits=2, workers=2,
               log=print) -> dict:
-    from analysis.diagnose import calibrate_base
-    from analysis.loop import (_Wrapped, _base_params, fit_observations, rerun_table,
-                               twin_corrected_refits)
+    from analysis.loop import fit_observations, joint_fit, rerun_table, twin_corrected_refits
     from analysis.measurements import load_dataset
     from analysis.open_model import OpenTwinModel
     from analysis.open_suite import truth_strengths
@@ -50,9 +48,7 @@ def refit_one(name, loops_dir, datasets_dir, *, rerun_replicates=3, max_refits=2
     obs = fit_observations(obs0, m)
     theta = {r.name: float(r.value) for r in par.itertuples() if r.role == "base"}
     added = {r.name: float(r.value) for r in par.itertuples() if r.role == "effect"}
-    w = _Wrapped(m, added, theta)
-    _, final = calibrate_base(w.predict, obs, _base_params(m, theta, added),
-                              model_se=w.model_se())
+    final = joint_fit(m, obs, theta, added)
     before = {k: (float(final.params[k]), float(final.stderr[k])) for k in added}
     theta = {k: float(final.params[k]) for k in theta}
     added = {k: float(final.params[k]) for k in added}
