@@ -44,6 +44,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import shutil
@@ -403,7 +404,10 @@ def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
     is biased by the model's error there. Each refit shifts the model onto the rerun's means at
     the current point (:class:`_Corrected`) and fits again; a point that moved by more than
     ``tol_se`` standard errors is rerun and refitted, at most ``max_refits`` times. A slope
-    error of the model by a factor r leaves (1 - r) of the strength's error per refit.
+    error of the model by a factor r leaves (1 - r) of the strength's error per refit. The
+    standard errors of the last refit are scaled by sqrt(chi2/dof) where that exceeds 1 and
+    combined in quadrature with the last refit's step of each parameter (an unconverged
+    iteration is as uncertain as it still moves).
 
     Returns dict: 'final' (FitResult), 'theta', 'added', 'rerun' (the last rerun's score:
     prediction, z, chi2, dof, runs of every rerun), 'refits' (one row per refit), 'stairs'
@@ -430,9 +434,18 @@ def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
         log("twin-corrected refit %d: %s (moved %.2f se), chi2/dof %.2f"
             % (it + 1, _fmt_theta({k: fit.params[k] for k in list(theta) + list(added)}),
                moved, fit.chi2_dof))
-        final = fit
+        prev = dict(theta, **added)
         theta = {k: float(fit.params[k]) for k in theta}
         added = {k: float(fit.params[k]) for k in added}
+        # the se reported: the fit's, scaled up where the shifted model fits worse than its
+        # noise says, and combined with this refit's own step (the iteration's error is of
+        # the order of its last step; a converged refit barely adds to it)
+        birge = math.sqrt(max(1.0, float(fit.chi2_dof)))
+        se_eff = {k: float(np.hypot(birge * float(fit.stderr.get(k, np.nan)),
+                                    float(fit.params[k]) - prev[k]))
+                  for k in prev}
+        final = dataclasses.replace(fit, stderr=dict(fit.stderr, **se_eff))
+        refits[-1]["birge"] = birge
         stairs.append(_stage_row("twin-corrected" if it == 0 else "twin-corrected %d"
                                  % (it + 1), fit, nb + len(added)))
         if moved < tol_se:
