@@ -61,7 +61,7 @@ from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging
 from analysis.conditions import ConditionError, label, physics_table
 from analysis.diagnose import BaseParameter, calibrate_base, diagnose
 from analysis.measurements import DatasetError, load_dataset
-from analysis.open_model import BudgetError, OpenTwinModel, RUN_WALL_S
+from analysis.open_model import BudgetError, OpenTwinModel, run_wall_s
 from analysis.twin_model import (candidates, dataset_observations, reference_parameters,
                                  with_run_sd, yield_times_of)
 
@@ -945,7 +945,7 @@ def main(argv=None):
                       "(%.0f s per run)" % ("anchor + base responses" if stage == "base"
                                             else "with the effect responses", ps["runs"],
                                             ps["cached"], ps["new"], ps["est_wall_s"] / 60,
-                                            a.workers, RUN_WALL_S))
+                                            a.workers, run_wall_s(base_config)))
             return 0
         if a.max_reanchor < 0:
             raise ValueError("--max-reanchor must be >= 0, got %d" % a.max_reanchor)
