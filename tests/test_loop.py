@@ -491,3 +491,30 @@ def test_diagnosis_on_the_twin_corrected_model_drops_a_false_alarm():
     fs = loop.forward_select(shifted, obs, {k: float(fin.params[k]) for k in ("a", "b")},
                              log=lambda s: None)
     assert fs["added"] == {}
+
+
+def test_unconverged_refits_state_an_se_as_large_as_their_last_step():
+    """Stopped after one refit while still moving (max_refits=1), the reported se of the
+    strength is at least the refit's step, and the truth lies within 2 of them."""
+    m = ToyModel(se=0.002)
+    x2 = ((m.f - 26) / 6) ** 2
+
+    def twin(theta, eff):
+        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
+        y[:, 0] += 2.5 * eff.get("E1", 0.0) * x2 * (theta["a"] - 2.0)
+        return pd.Series(y.ravel(), index=m.keys)
+
+    mu = twin({"a": 2.2, "b": 0.4}, {"E1": 0.3}).to_numpy()
+    obs = pd.DataFrame({"condition_id": m.keys.get_level_values(0),
+                        "observable": m.keys.get_level_values(1), "value": mu, "sd": 0.01})
+    fs = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None)
+    before = fs["added"]["E1"]
+    tc = loop.twin_corrected_refits(
+        m, obs, fs["theta"], fs["added"], fs["last_fit"],
+        lambda th, eff: (twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()),
+        max_refits=1, log=lambda s: None)
+    step = abs(tc["added"]["E1"] - before)
+    assert tc["refits"][-1]["moved_se"] > loop.POLISH_TOL_SE          # not converged
+    se = tc["final"].stderr["E1"]
+    assert se >= step - 1e-12
+    assert abs(tc["added"]["E1"] - 0.3) <= 2 * se
