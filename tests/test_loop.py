@@ -415,6 +415,18 @@ def test_loop_reanchors_where_the_answer_lies_beyond_the_model(tmp_path):
     assert abs(fit - truth) <= 3 * se + 1e-4
 
 
+def _interacting_twin(m, strength=2.5):
+    """A 'twin' of the toy model whose E1 response grows with the base parameter a:
+    (1 + strength (a - 2)) times the model's, the model's own at its anchor a = 2."""
+    x2 = ((m.f - 26) / 6) ** 2
+
+    def twin(theta, eff):
+        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
+        y[:, 0] += strength * eff.get("E1", 0.0) * x2 * (theta["a"] - 2.0)
+        return pd.Series(y.ravel(), index=m.keys)
+    return twin
+
+
 def test_twin_corrected_refits_remove_the_models_interaction_bias():
     """The 'twin' has an interaction the model lacks (E1's response 1.5 times stronger at the
     data's a = 2.2 than at the model's anchor a = 2.0): the model's own fit puts E1 many
@@ -422,12 +434,7 @@ def test_twin_corrected_refits_remove_the_models_interaction_bias():
     point bring it within its interval, and a rerun at the truth-consistent point moves
     nothing (the refits stop)."""
     m = ToyModel(se=0.002)
-    x2 = ((m.f - 26) / 6) ** 2
-
-    def twin(theta, eff):
-        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
-        y[:, 0] += 2.5 * eff.get("E1", 0.0) * x2 * (theta["a"] - 2.0)
-        return pd.Series(y.ravel(), index=m.keys)
+    twin = _interacting_twin(m)
 
     truth = {"a": 2.2, "b": 0.4}
     rng = np.random.default_rng(11)
@@ -497,12 +504,7 @@ def test_unconverged_refits_state_an_se_as_large_as_their_last_step():
     """Stopped after one refit while still moving (max_refits=1), the reported se of the
     strength is at least the refit's step, and the truth lies within 2 of them."""
     m = ToyModel(se=0.002)
-    x2 = ((m.f - 26) / 6) ** 2
-
-    def twin(theta, eff):
-        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
-        y[:, 0] += 2.5 * eff.get("E1", 0.0) * x2 * (theta["a"] - 2.0)
-        return pd.Series(y.ravel(), index=m.keys)
+    twin = _interacting_twin(m)
 
     mu = twin({"a": 2.2, "b": 0.4}, {"E1": 0.3}).to_numpy()
     obs = pd.DataFrame({"condition_id": m.keys.get_level_values(0),
