@@ -125,7 +125,7 @@ def main(argv=None):
     t.to_csv(out / "summary.csv", index=False)
     n = len(t)
     lines = ["# Twin-corrected refits on the open-world loop's answers (SYNTHETIC)", "",
-             "95 % interval covers the true strength: before %d / %d, after %d / %d "
+             "95 %% interval covers the true strength: before %d / %d, after %d / %d "
              "(goal >= 90 %%)" % (t["covered_before"].sum() if n else 0, n,
                                   t["covered_after"].sum() if n else 0, n), "",
              "| dataset | effect | truth | model fit | z | refitted | z | reruns |",
