@@ -789,7 +789,9 @@ def step_until_done(twin, n_max):
         step()
 
 
-def run(cfg, out_dir):
+def build_twin(cfg):
+    """The scene of a complete config, registered as TWIN (the PyRunners' name for it), and
+    the most steps its protocol may take."""
     tri, info = load_jar(cfg)
     effects = load_effects(cfg["effects"], side="dem")  # ConfigError on unknown names/params
     twin = Twin(cfg, tri, info, effects)
@@ -798,9 +800,14 @@ def run(cfg, out_dir):
     __main__.TWIN = twin
     t_max = (cfg["ramp_s"] + cfg["settle_max_s"] + cfg["record_s"] + 1.0
              if cfg["protocol"] == "mill" else cfg["record_s"] + 1.0)
+    return twin, int(t_max / cfg["dt_s"]) + 10
+
+
+def run(cfg, out_dir):
+    twin, n_max = build_twin(cfg)
     wall0 = time.time()
     it0 = O.iter
-    step_until_done(twin, int(t_max / cfg["dt_s"]) + 10)
+    step_until_done(twin, n_max)
     wall = time.time() - wall0
     if twin.error:
         raise RunFailure(twin.error)

@@ -69,25 +69,19 @@ def main(argv=None):
     p.add_argument("--out", required=True)
     a = p.parse_args(sys.argv[1:] if argv is None else argv)
     cfg = twin_config.load_config(a.config)
-    tri, info = mill.load_jar(cfg)
-    effects = mill.load_effects(cfg["effects"], side="dem")
-    twin = mill.Twin(cfg, tri, info, effects)
-    mill.TWIN = twin
-    import __main__
-    __main__.TWIN = twin
+    twin, n_max = mill.build_twin(cfg)
     probe = Probe(twin)
+    import __main__
     __main__.PROBE = probe
     O.engines = O.engines + [PyRunner(iterPeriod=PROBE_STEPS, command="PROBE()",
                                       label="profile_probe")]
     O.timingEnabled = True
-    t_max = (cfg["ramp_s"] + cfg["settle_max_s"] + cfg["record_s"] + 1.0
-             if cfg["protocol"] == "mill" else cfg["record_s"] + 1.0)
     wall0 = time.time()
     it0 = O.iter
-    mill.step_until_done(twin, int(t_max / cfg["dt_s"]) + 10)
+    mill.step_until_done(twin, n_max)
     wall = time.time() - wall0
     out = {"config": cfg, "dt_s": cfg["dt_s"], "steps": O.iter - it0, "wall_s": wall,
-           "n_facets": info["n_facets"], "probe_s": probe.own_s, "probe_steps": PROBE_STEPS,
+           "n_facets": twin.info["n_facets"], "probe_s": probe.own_s, "probe_steps": PROBE_STEPS,
            "state_steps": probe.steps,
            "engines": {s: {k: {"ns": v[0], "calls": v[1]} for k, v in b.items()}
                        for s, b in probe.book.items()},
