@@ -137,18 +137,24 @@ def jar_mesh(meta: dict) -> tuple[np.ndarray, dict, list]:
         the STL is missing, unreadable or not a closed, inward-oriented jar.
     """
     from analysis.config import REPO_ROOT, twin_config
-    from geometry.stl_io import check_jar_mesh, read_stl, scale_for_units
+    from geometry.jar import mesh_for_config
     given = meta.get("config") or {}
     cfg = twin_config.default_config()
+    keys = ("stl_path", "stl_units") + twin_config.JAR_KEYS
     defaulted = [k for k in ("stl_path", "stl_units") if k not in given]
-    cfg.update({k: given[k] for k in ("stl_path", "stl_units") if k in given})
+    cfg.update({k: given[k] for k in keys if k in given})
     path = twin_config.resolve_stl(cfg, str(REPO_ROOT))
-    tri = read_stl(path)
-    scale = scale_for_units(tri, cfg["stl_units"])
-    info = check_jar_mesh(tri, scale)
-    info["stl_path"] = (os.path.relpath(path, REPO_ROOT)
-                        if Path(path).resolve().is_relative_to(Path(REPO_ROOT).resolve())
-                        else str(path))
+    try:
+        tri, info, scale = mesh_for_config(cfg, path)
+    except ValueError as exc:
+        raise ExportError(f"parametric jar of the run: {exc}")
+    if info.pop("source") == "parametric":
+        info["stl_path"] = "parametric"
+        path = "parametric jar"
+    else:
+        info["stl_path"] = (os.path.relpath(path, REPO_ROOT)
+                            if Path(path).resolve().is_relative_to(Path(REPO_ROOT).resolve())
+                            else str(path))
     rec = meta.get("jar")
     if isinstance(rec, dict):
         if "n_facets" in rec and int(rec["n_facets"]) != info["n_facets"]:
@@ -159,7 +165,7 @@ def jar_mesh(meta: dict) -> tuple[np.ndarray, dict, list]:
             raise ExportError(f"{path}: inner length {info['inner_length_m']:.6g} m, but the "
                               f"run recorded {float(rec['inner_length_m']):.6g} m: the STL "
                               f"changed after the run")
-    return tri * scale, info, defaulted
+    return tri, info, defaulted
 
 
 def load_run(run_dir) -> Run:

@@ -88,6 +88,17 @@ def _jar_info(path, units, mtime_ns, size):
     return measure_jar(path, units)[1]
 
 
+@functools.lru_cache(maxsize=32)
+def _parametric_jar_info(dims):
+    """Measured parametric jar of the dimensions ``dims`` (sorted (key, value) pairs)."""
+    from geometry.jar import mesh_for_config
+
+    try:
+        return mesh_for_config(dict(dims), None)[1]
+    except ValueError as exc:
+        raise twin_config.ConfigError("parametric jar: %s" % exc)
+
+
 def check_ball_fits_jar(cfg):
     """Check, without YADE, that the config's ball can move in the config's jar.
 
@@ -105,6 +116,13 @@ def check_ball_fits_jar(cfg):
     """
     from geometry.stl_io import MeshError, ball_fit_error
 
+    if twin_config.parametric_jar(cfg) is not None:
+        info = _parametric_jar_info(tuple(sorted(twin_config.parametric_jar(cfg).items())))
+        problem = ball_fit_error(cfg["ball_diameter_m"], info)
+        if problem:
+            raise twin_config.ConfigError("ball_diameter_m = %g m does not fit the parametric "
+                                          "jar: %s" % (cfg["ball_diameter_m"], problem))
+        return
     path = twin_config.resolve_stl(cfg, str(REPO_ROOT))
     try:
         st = os.stat(path)

@@ -17,12 +17,13 @@ import argparse
 import sys
 
 import numpy as np
-from scipy.optimize import brentq
 
 try:  # run as package module or as a plain script
-    from geometry.stl_io import write_stl, signed_volume, check_jar_mesh, edge_defects
+    from geometry.stl_io import (write_stl, signed_volume, check_jar_mesh, edge_defects,
+                                 read_stl, scale_for_units)
 except ImportError:  # pragma: no cover
-    from stl_io import write_stl, signed_volume, check_jar_mesh, edge_defects
+    from stl_io import (write_stl, signed_volume, check_jar_mesh, edge_defects, read_stl,
+                        scale_for_units)
 
 DEFAULTS = {
     "inner_diameter_m": 0.028,
@@ -123,8 +124,10 @@ def jar_triangles(length_m, inner_diameter_m=DEFAULTS["inner_diameter_m"],
                          % (length_m, fillet_radius_m))
     if n_circ < 8:
         raise ValueError("n_circ must be >= 8, got %d" % n_circ)
-    n_fillet = max(2, n_circ // 16)
     width = 2 * np.pi * radius / n_circ
+    # quarter-circle fillet: n_circ // 16 segments, more for large (domed) fillets so that no
+    # segment is longer than two circumferential facet widths
+    n_fillet = max(2, n_circ // 16, int(np.ceil(0.5 * np.pi * fillet_radius_m / (2 * width))))
     n_axial = max(1, int(np.ceil((length_m - 2 * fillet_radius_m) / (4 * width))))
     prof = _profile(length_m, radius, fillet_radius_m, n_fillet, n_axial)
     rim = radius - fillet_radius_m
@@ -143,7 +146,32 @@ def solve_length(volume_m3=DEFAULTS["volume_m3"], inner_diameter_m=DEFAULTS["inn
     if f(lo) > 0:
         raise ValueError("volume %g m3 is too small for D = %g m and fillet %g m"
                          % (volume_m3, inner_diameter_m, fillet_radius_m))
-    return brentq(f, lo, hi, xtol=1e-9)
+    # bisection (the enclosed volume grows monotonically with the length), numpy only so that
+    # the scene (YADE's Python) can build the jar itself
+    f_lo = f(lo)
+    while hi - lo > 1e-10:
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        if (f_mid > 0) == (f_lo > 0):
+            lo, f_lo = mid, f_mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def config_jar(cfg):
+    """Triangles [m] and inner length [m] of a run config's parametric jar.
+
+    ``cfg`` is a complete run config whose ``jar_inner_diameter_m`` is set (see
+    ``yade_scripts/twin_config.py``, keys ``jar_*``): the length is ``jar_inner_length_m`` or,
+    when that is null, the one at which the mesh holds ``jar_volume_m3``.
+    """
+    d = cfg["jar_inner_diameter_m"]
+    rf = cfg["jar_fillet_radius_m"]
+    length = cfg.get("jar_inner_length_m")
+    if length is None:
+        length = solve_length(cfg["jar_volume_m3"], d, rf)
+    return jar_triangles(length, d, rf), length
 
 
 def make_jar(volume_m3=DEFAULTS["volume_m3"], inner_diameter_m=DEFAULTS["inner_diameter_m"],
@@ -151,6 +179,30 @@ def make_jar(volume_m3=DEFAULTS["volume_m3"], inner_diameter_m=DEFAULTS["inner_d
     """Triangles [m] and the solved inner length [m] of the default-shaped jar."""
     length = solve_length(volume_m3, inner_diameter_m, fillet_radius_m, n_circ)
     return jar_triangles(length, inner_diameter_m, fillet_radius_m, n_circ), length
+
+
+def mesh_for_config(cfg, stl_abs_path):
+    """The jar a run config names: (triangles [m], measured dimensions, scale [m per unit]).
+
+    One rule for the scene and every reader: a parametric jar (``jar_inner_diameter_m`` set) is
+    generated here; otherwise the STL at ``stl_abs_path`` is read in ``cfg['stl_units']``.
+    ``info['source']`` says which ('parametric' or the STL path as given).
+
+    Raises
+    ------
+    geometry.stl_io.MeshError / OSError / ValueError - unreadable STL, not a closed jar, or
+    impossible parametric dimensions
+    """
+    if cfg.get("jar_inner_diameter_m") is not None:
+        tri, _ = config_jar(cfg)
+        info = check_jar_mesh(tri)
+        info["source"] = "parametric"
+        return tri, info, 1.0
+    tri = read_stl(stl_abs_path)
+    scale = scale_for_units(tri, cfg["stl_units"])
+    info = check_jar_mesh(tri, scale)
+    info["source"] = stl_abs_path
+    return tri * scale, info, scale
 
 
 def main(argv=None):

@@ -416,14 +416,16 @@ def test_powder_layer_takes_its_energy_from_each_impact(tmp_path):
 
 
 @pytest.mark.yade
-def test_rolling_resistance_decelerates_a_rolling_ball(tmp_path):
-    """A ball rolling along the still jar's bottom decelerates at (5/7)(RF + drf) g (3 %)."""
+@pytest.mark.parametrize("rolling_model", ["spring", "constant_torque"])
+def test_rolling_resistance_decelerates_a_rolling_ball(rolling_model, tmp_path):
+    """A ball rolling along the still jar's bottom decelerates at (5/7)(RF + drf) g (3 %), with
+    either rolling model (they differ only in how fast the capped moment builds up)."""
     rf = twin_config.PARAMETERS["rolling_friction"][0]
     g = twin_config.PARAMETERS["gravity_m_s2"][0]
     for drf in (0.0, 0.3):
         cfg = {"protocol": "free", "amplitude_m": 0.0, "ball_start": "given",
                "ball_init_pos_m": [-0.009, 0.0, -0.0035], "ball_init_vel_m_s": [0.3, 0.0, 0.0],
-               "record_s": 0.06,
+               "record_s": 0.06, "rolling_model": rolling_model,
                "effects": {"rolling_resistance": {"extra_rolling_friction": drf}}}
         tr = twin_run(cfg, tmp_path).trajectory
         r = 0.0103

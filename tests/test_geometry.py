@@ -126,3 +126,66 @@ def test_run_id_follows_config_and_stl_bytes(tmp_path):
 def test_bad_config_is_one_clear_error(bad, msg):
     with pytest.raises(twin_config.ConfigError, match=msg):
         twin_config.complete_config(bad)
+
+
+# -- the parametric jar (run config keys jar_*) ------------------------------------------------
+def test_parametric_jar_at_the_defaults_is_the_committed_stl():
+    from geometry.jar import mesh_for_config
+    cfg = twin_config.complete_config({"jar_inner_diameter_m": 0.028})
+    tri, info, scale = mesh_for_config(cfg, None)
+    stl = read_stl(str(DEFAULT_STL)) * 1e-3
+    assert tri.shape == stl.shape and scale == 1.0 and info["source"] == "parametric"
+    a = np.sort(tri.reshape(-1, 9), axis=0)
+    b = np.sort(stl.reshape(-1, 9), axis=0)
+    assert np.abs(a - b).max() < 1e-6          # float32 STL in mm
+    assert info["volume_m3"] == pytest.approx(25e-6, rel=1e-6)
+
+
+@pytest.mark.parametrize("dims", [
+    {"jar_inner_diameter_m": 0.024},
+    {"jar_inner_diameter_m": 0.032, "jar_volume_m3": 30e-6},
+    {"jar_inner_diameter_m": 0.028, "jar_inner_length_m": 0.055},
+    {"jar_inner_diameter_m": 0.028, "jar_fillet_radius_m": 0.0125},   # domed ends
+])
+def test_parametric_jar_is_closed_inward_and_has_its_dimensions(dims):
+    from geometry.jar import mesh_for_config
+    cfg = twin_config.complete_config(dict(dims, ball_diameter_m=0.0175))
+    tri, info, _ = mesh_for_config(cfg, None)
+    assert edge_defects(tri) == (0, 0) and signed_volume(tri) < 0
+    assert info["inner_diameter_m"] == pytest.approx(cfg["jar_inner_diameter_m"], rel=1e-9)
+    if cfg["jar_inner_length_m"] is not None:
+        assert info["inner_length_m"] == pytest.approx(cfg["jar_inner_length_m"], rel=1e-9)
+    else:
+        assert info["volume_m3"] == pytest.approx(cfg["jar_volume_m3"], rel=1e-6)
+    # a domed end is a longer jar than a flat one of the same volume
+    if dims.get("jar_fillet_radius_m", 0) > 0.01:
+        flat = mesh_for_config(twin_config.complete_config({"jar_inner_diameter_m": 0.028}),
+                               None)[1]
+        assert info["inner_length_m"] > flat["inner_length_m"] + 1e-3
+
+
+@pytest.mark.parametrize("bad, msg", [
+    ({"jar_inner_length_m": 0.05}, "needs jar_inner_diameter_m"),
+    ({"jar_inner_diameter_m": 0.028, "jar_fillet_radius_m": 0.0135}, "below D/2"),
+    ({"jar_inner_diameter_m": 0.028, "jar_inner_length_m": 0.009}, "below its lower bound"),
+    ({"jar_inner_diameter_m": 0.028, "jar_inner_length_m": 0.012,
+      "jar_fillet_radius_m": 0.008}, "twice the fillet"),
+    ({"jar_inner_diameter_m": 0.02, "ball_diameter_m": 0.0206}, "does not fit"),
+    ({"jar_inner_diameter_m": float("nan")}, "finite"),
+])
+def test_impossible_parametric_jar_is_one_clear_error(bad, msg):
+    with pytest.raises(twin_config.ConfigError, match=msg):
+        twin_config.complete_config(bad)
+
+
+def test_parametric_jar_run_id_ignores_the_stl_and_keeps_old_ids(tmp_path):
+    base = twin_config.complete_config({})
+    # the jar keys at their defaults leave the id of an STL-jar config unchanged
+    assert twin_config.run_id(base) == twin_config.run_id(
+        {k: v for k, v in base.items() if k not in twin_config.JAR_KEYS})
+    par = {"jar_inner_diameter_m": 0.028}
+    other_stl = tmp_path / "j.stl"
+    write_stl(str(other_stl), make_jar(n_circ=16)[0])
+    assert twin_config.run_id(par) == twin_config.run_id(dict(par, stl_path=str(other_stl)))
+    assert twin_config.run_id(par) != twin_config.run_id(base)
+    assert twin_config.run_id(par) != twin_config.run_id({"jar_inner_diameter_m": 0.029})

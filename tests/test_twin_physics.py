@@ -283,3 +283,22 @@ def test_effects_that_move_the_jar_keep_the_lab_frame(tmp_path):
     assert rec.meta["frame"] == "jar"
     with pytest.raises(TwinRunError, match="arc_motion"):
         run(dict(cfg, frame="jar", effects={"arc_motion": {"curvature_1_m": 5.0}}), tmp_path)
+
+
+@pytest.mark.parametrize("frame", ["jar", "lab"])
+def test_parametric_jar_sets_where_the_ball_meets_the_end(frame, tmp_path):
+    """A ball thrown along the axis of a parametric jar (D 30 mm, L 60 mm) meets the end cap
+    after the flight the dimensions give, (L/2 - r) / v0, and the recording names the jar."""
+    v0, d = 1.0, 0.0175
+    cfg = dict(STILL, ball_diameter_m=d, ball_init_pos_m=[0.0, 0.0, 0.0],
+               ball_init_vel_m_s=[v0, 0.0, 0.0], record_s=0.03, frame=frame,
+               jar_inner_diameter_m=0.030, jar_inner_length_m=0.060)
+    rec = run(cfg, tmp_path)
+    j = rec.meta["jar"]
+    assert j["stl_path"] == "parametric"
+    assert j["inner_length_m"] == pytest.approx(0.060, rel=1e-9)
+    assert j["inner_diameter_m"] == pytest.approx(0.030, rel=1e-9)
+    first = rec.impacts.sort_values("t_start_s").iloc[0]
+    assert first["where"] == "end_cap"
+    assert first["t_start_s"] == pytest.approx((0.030 - d / 2) / v0, abs=2e-5)
+    assert_ball_inside(rec)

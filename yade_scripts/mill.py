@@ -57,8 +57,8 @@ import numpy as np  # noqa: E402
 import twin_config  # noqa: E402
 from twin_config import ConfigError  # noqa: E402
 from twin_modes import classify_motion  # noqa: E402
-from geometry.stl_io import (MeshError, ball_fit_error, check_jar_mesh, read_stl,  # noqa: E402
-                             scale_for_units)
+from geometry.stl_io import MeshError, ball_fit_error  # noqa: E402
+from geometry.jar import mesh_for_config  # noqa: E402
 from effects import load_effects  # noqa: E402
 
 from yade import O, utils  # noqa: E402
@@ -74,6 +74,10 @@ BALL_MASK = 3
 #: NewtonIntegrator's mask in the jar frame: the ball (3 & 1) is integrated, the static facets
 #: (2 & 1 = 0) are skipped - Newton's pass over the jar's facets was half of a lab-frame step
 NEWTON_JAR_FRAME_MASK = 1
+#: rolling_model 'constant_torque': the rolling spring is this much stiffer than 'spring'
+#: (spring: the cap at |Fn| within Fn / 1e4 N rad, 0.1 rad at 1 kN; x500: 2e-4 rad, less than one
+#: step's rolling at impact spin rates)
+ROLLING_CDT_FACTOR = 500.0
 #: YADE's Ig2_Facet_Sphere_ScGeom(hertzian=True) gives the facet this radius, in ball radii.
 HERTZIAN_FACET_RADIUS_FACTOR = 1e8
 TRAJ_COLUMNS = list(twin_config.TRAJECTORY_COLUMNS)
@@ -112,15 +116,19 @@ def config_from_batch_table():
 def load_jar(cfg):
     """Read and check the jar STL; return triangles [m] and its dimensions."""
     path = twin_config.resolve_stl(cfg, ROOT)
-    tri = read_stl(path)
-    scale = scale_for_units(tri, cfg["stl_units"])
-    info = check_jar_mesh(tri, scale)
-    info["stl_path"] = os.path.relpath(path, ROOT) if path.startswith(ROOT) else path
+    try:
+        tri, info, scale = mesh_for_config(cfg, path)
+    except ValueError as exc:   # impossible parametric dimensions
+        raise ConfigError("parametric jar: %s" % exc)
+    if info.pop("source") == "parametric":
+        info["stl_path"] = "parametric"
+    else:
+        info["stl_path"] = os.path.relpath(path, ROOT) if path.startswith(ROOT) else path
     info["metres_per_unit"] = scale
     problem = ball_fit_error(cfg["ball_diameter_m"], info)
     if problem:
         raise ConfigError(problem)
-    return tri * scale, info
+    return tri, info
 
 
 def point_triangle_distance(p, tri):
@@ -318,6 +326,10 @@ class Twin(object):
         # rolling stiffness: the elastic rolling angle at the cap stays below 1e-2 rad up to
         # |Fn| = 100 N, so the rolling moment behaves as a constant-torque (EDEM-like) model
         krot = cfg["rolling_friction"] * self.r * 100.0 / 1e-2 if cfg["rolling_friction"] > 0 else 0.0
+        if cfg["rolling_model"] == "constant_torque":
+            # EDEM's directional constant torque: the cap at |Fn| = 1 kN within 2e-4 rad, so
+            # the capped torque acts from the first steps of an impact (ROLLING_CDT_FACTOR)
+            krot *= ROLLING_CDT_FACTOR
         self.law = Law2_ScGeom_MindlinPhys_Mindlin(includeMoment=cfg["rolling_friction"] > 0)
         if self.frame == "lab":
             self.motion = HarmonicMotionEngine(ids=self.jar_ids, A=Vector3(self.A, 0, 0),

@@ -48,6 +48,14 @@ PARAMETERS = {
     "rolling_friction": (0.5, 0.0, 2.0, "-", "contact",
                          "ball-wall rolling friction RF (Table 2, bounds 0.1-0.5), used as "
                          "YADE's eta: rolling moment capped at RF * R * |Fn|"),
+    "rolling_model": ("spring", None, None, "-", "contact",
+                      "rolling resistance: 'spring' (YADE's elastic-plastic rolling spring of "
+                      "stiffness RF r 100 N / 0.01 rad, capped at RF r |Fn|: the cap holds at "
+                      "rest and in rolling, but in a 0.2 ms wall impact the moment builds up to "
+                      "about half of it, by estimate); 'constant_torque' (EDEM's directional "
+                      "constant torque, RF r |Fn| against the rolling at every contact step: "
+                      "the same cap with a rolling stiffness 500x higher, reached within a step "
+                      "or two of any impact)"),
     "gravity_m_s2": (9.81, 0.0, 100.0, "m/s2", "numerical", "gravity, along -z (across the motion)"),
     "dt_s": (3e-6, 1e-8, 1e-2, "s", "numerical",
              "time step (default from results/studies/timestep_convergence.csv)"),
@@ -76,6 +84,21 @@ PARAMETERS = {
     "stl_path": ("geometry/mm400_25ml.stl", None, None, "-", "apparatus",
                  "jar mesh, closed, axis along x, centred at the origin; relative paths are "
                  "taken from the repository root"),
+    "jar_inner_diameter_m": (None, 0.012, 0.08, "m", "apparatus",
+                             "inner diameter D of a parametric jar (a cylinder along x closed by "
+                             "flat ends joined to it by a fillet; geometry/jar.py); null: the jar "
+                             "is the STL of stl_path. Default jar: D = 28 mm (assumed, see "
+                             "geometry/README.md)"),
+    "jar_inner_length_m": (None, 0.012, 0.2, "m", "apparatus",
+                           "inner length L of the parametric jar, end face to end face; null: "
+                           "solved so that the mesh holds jar_volume_m3"),
+    "jar_volume_m3": (25e-6, 1e-6, 1e-3, "m3", "apparatus",
+                      "cavity volume of the parametric jar when jar_inner_length_m is null "
+                      "(MM400 25 mL jar: 25e-6)"),
+    "jar_fillet_radius_m": (0.005, 1e-4, 0.04, "m", "apparatus",
+                            "radius of the rounded edge between the parametric jar's cylinder "
+                            "and its flat ends; must stay below D/2 - 1 mm (a flat pole disc "
+                            "remains); close to D/2 the ends are domed (hemispherical)"),
     "stl_units": ("auto", None, None, "-", "apparatus",
                   "'m', 'mm' or 'auto' (mm when the mesh is larger than 1 unit)"),
     "facet_contact": ("flat", None, None, "-", "numerical",
@@ -97,7 +120,14 @@ PARAMETERS = {
 
 #: keys left out of the run id's hash at these values (added after runs were cached under
 #: ids that did not hold them)
-HASH_NEUTRAL = {"frame": "lab"}
+HASH_NEUTRAL = {"frame": "lab", "rolling_model": "spring", "jar_inner_diameter_m": None, "jar_inner_length_m": None,
+                "jar_volume_m3": 25e-6, "jar_fillet_radius_m": 0.005}
+
+#: keys of the parametric jar (used when jar_inner_diameter_m is set; geometry/jar.py)
+JAR_KEYS = ("jar_inner_diameter_m", "jar_inner_length_m", "jar_volume_m3", "jar_fillet_radius_m")
+
+#: the smallest flat disc left at the end faces' centre [m]: the fillet may reach D/2 - this
+PARAMETRIC_POLE_DISC_M = 1e-3
 
 #: Keys holding a choice from a fixed set.
 CHOICES = {
@@ -106,10 +136,11 @@ CHOICES = {
     "stl_units": ("auto", "m", "mm"),
     "facet_contact": ("flat", "yade_default"),
     "frame": ("lab", "jar", "auto"),
+    "rolling_model": ("spring", "constant_torque"),
 }
 
 #: Keys that are not plain floats.
-NON_FLOAT = set(CHOICES) | {"restitution_compensation", "ball_init_pos_m", "ball_init_vel_m_s", "stl_path", "effects",
+NON_FLOAT = set(CHOICES) | {"restitution_compensation", "jar_inner_diameter_m", "jar_inner_length_m", "ball_init_pos_m", "ball_init_vel_m_s", "stl_path", "effects",
                             "seed", "steady_window_cycles"}
 
 
@@ -158,6 +189,8 @@ def complete_config(user):
             if not isinstance(val, bool):
                 raise ConfigError("restitution_compensation must be true or false, got %r" % (val,))
             continue
+        if key in ("jar_inner_diameter_m", "jar_inner_length_m") and val is None:
+            continue
         if key == "stl_path":
             if not isinstance(val, str) or not val:
                 raise ConfigError("stl_path must be a non-empty string")
@@ -183,6 +216,23 @@ def complete_config(user):
         raise ConfigError("ball_start='given' needs ball_init_pos_m")
     if not isinstance(cfg["effects"], dict):
         raise ConfigError("effects must be an object {name: {param: value}}")
+    if cfg["jar_inner_diameter_m"] is None:
+        if cfg["jar_inner_length_m"] is not None:
+            raise ConfigError("jar_inner_length_m needs jar_inner_diameter_m (a parametric jar); "
+                              "without it the jar is the STL of stl_path")
+    else:
+        rad = 0.5 * cfg["jar_inner_diameter_m"]
+        if cfg["jar_fillet_radius_m"] > rad - PARAMETRIC_POLE_DISC_M:
+            raise ConfigError("jar_fillet_radius_m = %g m must stay below D/2 - %g m = %g m"
+                              % (cfg["jar_fillet_radius_m"], PARAMETRIC_POLE_DISC_M,
+                                 rad - PARAMETRIC_POLE_DISC_M))
+        length = cfg["jar_inner_length_m"]
+        if length is not None and length <= 2.0 * cfg["jar_fillet_radius_m"]:
+            raise ConfigError("jar_inner_length_m = %g m must exceed twice the fillet radius "
+                              "(%g m)" % (length, 2.0 * cfg["jar_fillet_radius_m"]))
+        if cfg["ball_diameter_m"] >= cfg["jar_inner_diameter_m"]:
+            raise ConfigError("ball_diameter_m = %g m does not fit the jar's inner diameter %g m"
+                              % (cfg["ball_diameter_m"], cfg["jar_inner_diameter_m"]))
     if cfg["output_fps"] * cfg["dt_s"] > 1.0:
         raise ConfigError("output_fps = %g is faster than one sample per step (dt_s = %g)"
                           % (cfg["output_fps"], cfg["dt_s"]))
@@ -196,6 +246,13 @@ def _is_finite_number(x):
 def repo_root():
     """Repository root (the folder holding yade_scripts/)."""
     return os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def parametric_jar(cfg):
+    """The parametric jar's dimensions {key: value} of a complete config, or None (the STL)."""
+    if cfg.get("jar_inner_diameter_m") is None:
+        return None
+    return {k: cfg[k] for k in JAR_KEYS}
 
 
 def resolve_stl(cfg, root=None):
@@ -212,10 +269,13 @@ def run_id(cfg, root=None):
     for k, v in HASH_NEUTRAL.items():
         if full.get(k) == v:
             del full[k]
+    parametric = full.get("jar_inner_diameter_m") is not None
+    if parametric:   # the mesh is the config's own; the STL named beside it is not used
+        del full["stl_path"], full["stl_units"]
     h = hashlib.sha256()
     h.update(json.dumps(full, sort_keys=True, separators=(",", ":")).encode())
-    stl = resolve_stl(full, root)
-    if os.path.exists(stl):
+    stl = None if parametric else resolve_stl(full, root)
+    if not parametric and os.path.exists(stl):
         with open(stl, "rb") as fh:
             h.update(hashlib.sha256(fh.read()).digest())
     return h.hexdigest()[:16]
