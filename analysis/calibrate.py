@@ -65,6 +65,15 @@ from analysis.measurements import load_dataset
 #: stroke, not stated in the paper)
 CALIBRATED = {"restitution": (0.1, 0.7), "static_friction": (0.3, 0.7),
               "rolling_friction": (0.1, 0.5), "amplitude_m": (0.010, 0.016)}
+#: physical prior ranges of the apparatus parameters a calibration may free (the MM400 25 mL
+#: jar; docs/apparatus.md says where each range comes from). The twin's run config accepts wider
+#: values (yade_scripts/twin_config.py); these are what a calibration may claim.
+APPARATUS = {"amplitude_m": (0.010, 0.016),
+             "jar_inner_diameter_m": (0.024, 0.032),
+             "jar_inner_length_m": (0.036, 0.056),
+             "jar_fillet_radius_m": (0.002, 0.010)}
+#: every parameter a calibration can free, with its prior range (``--free NAME[=LO:HI]``)
+PRIORS = {**CALIBRATED, **APPARATUS}
 OUTPUTS = ("v_mean_m_s", "f_col_hz")
 CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
 
@@ -145,6 +154,44 @@ def observe(table, velocity_frame="lab", operator="auto"):
         ob = observe_recording(rd, frame=velocity_frame)
         out.loc[i, "v_mean_m_s"] = ob.v_mean_m_s
         out.loc[i, "f_col_hz"] = ob.f_col_hz
+    return out
+
+
+def parse_free(specs):
+    """Calibrated parameters and bounds from ``--free`` strings ``NAME`` or ``NAME=LO:HI``.
+
+    A name must be one of :data:`PRIORS`; a given range must lie inside the declared prior
+    range (a calibration cannot claim a value outside the physical range). None or [] gives
+    :data:`CALIBRATED`.
+
+    Raises
+    ------
+    ValueError - unknown name, malformed or out-of-range bounds, a name given twice
+    """
+    if not specs:
+        return dict(CALIBRATED)
+    out = {}
+    for spec in specs:
+        name, _, rng = str(spec).partition("=")
+        name = name.strip()
+        if name not in PRIORS:
+            raise ValueError("--free %s: not a calibratable parameter (known: %s)"
+                             % (name, ", ".join(PRIORS)))
+        if name in out:
+            raise ValueError("--free %s given twice" % name)
+        lo, hi = PRIORS[name]
+        if rng:
+            try:
+                a, b = (float(x) for x in rng.split(":"))
+            except ValueError:
+                raise ValueError("--free %s: bounds must be LO:HI, got %r" % (name, rng))
+            if not (np.isfinite(a) and np.isfinite(b) and a < b):
+                raise ValueError("--free %s: need finite LO < HI, got %r" % (name, rng))
+            if a < lo or b > hi:
+                raise ValueError("--free %s: %g:%g leaves the declared range %g:%g"
+                                 % (name, a, b, lo, hi))
+            lo, hi = a, b
+        out[name] = (lo, hi)
     return out
 
 
@@ -543,12 +590,17 @@ def main(argv=None):
                         "trajectories exist)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config key fixed in every run, e.g. record_s=0.5 (repeatable)")
+    p.add_argument("--free", action="append", default=None, metavar="NAME[=LO:HI]",
+                   help="a parameter to calibrate, with optional bounds inside its declared "
+                        "range (repeatable; default: %s; apparatus: %s)"
+                        % (", ".join(CALIBRATED), ", ".join(APPARATUS)))
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
     # the twin's inputs and caches are never an output
     protected = [args.dataset, args.runs_dir]
     try:
         check_out_dir(args.out, protected)
+        bounds = parse_free(args.free)
         meas = load_measurements(args.dataset)
         base = {}
         for kv in args.set:
@@ -563,8 +615,12 @@ def main(argv=None):
             simulate = make_simulator(runner=args.runner, workers=args.workers,
                                       backend=args.backend, scheduler=args.scheduler,
                                       runs_dir=args.runs_dir)
-        res = calibrate(simulate, meas, n_initial=args.n_initial, n_refine=args.n_refine,
-                        n_rounds=args.rounds, n_validation=args.n_validation,
+        clash = sorted(set(base) & set(bounds))
+        if clash:
+            raise ValueError("--set fixes %s, which --free calibrates" % ", ".join(clash))
+        res = calibrate(simulate, meas, bounds=bounds, n_initial=args.n_initial,
+                        n_refine=args.n_refine, n_rounds=args.rounds,
+                        n_validation=args.n_validation,
                         v_rel_sd=args.v_rel_sd, f_col_sd_hz=args.f_col_sd_hz,
                         base_config=base, exclude_modes=args.exclude_mode,
                         operator=args.operator,

@@ -158,3 +158,27 @@ def test_camera_operator_on_a_recording(tmp_path):
     assert cal.observe(tab, "lab", operator="summary")["v_mean_m_s"].iloc[0] == 9.9
     with pytest.raises(ValueError, match="operator"):
         cal.observe(tab, "lab", operator="video")
+
+
+def test_free_parameters_parse_and_stay_inside_declared_ranges():
+    assert cal.parse_free(None) == cal.CALIBRATED
+    b = cal.parse_free(["amplitude_m", "jar_inner_diameter_m=0.026:0.030"])
+    assert b == {"amplitude_m": cal.APPARATUS["amplitude_m"],
+                 "jar_inner_diameter_m": (0.026, 0.030)}
+    for bad, msg in [(["jar_volume"], "not a calibratable"),
+                     (["amplitude_m=0.005:0.012"], "leaves the declared range"),
+                     (["amplitude_m=0.012"], "LO:HI"),
+                     (["amplitude_m=0.014:0.012"], "LO < HI"),
+                     (["amplitude_m", "amplitude_m"], "twice")]:
+        with pytest.raises(ValueError, match=msg):
+            cal.parse_free(bad)
+
+
+def test_cli_free_and_set_clash_or_unknown_is_exit_2_without_output(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert cal.main(["--fake", "--out", str(out), "--free", "bogus_m"]) == 2
+    assert "bogus_m" in capsys.readouterr().err
+    assert cal.main(["--fake", "--out", str(out), "--free", "amplitude_m",
+                     "--set", "amplitude_m=0.013"]) == 2
+    assert "amplitude_m" in capsys.readouterr().err
+    assert not out.exists()
