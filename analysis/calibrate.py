@@ -69,9 +69,10 @@ CALIBRATED = {"restitution": (0.1, 0.7), "static_friction": (0.3, 0.7),
 #: jar; docs/apparatus.md says where each range comes from). The twin's run config accepts wider
 #: values (yade_scripts/twin_config.py); these are what a calibration may claim.
 APPARATUS = {"amplitude_m": (0.010, 0.016),
-             "jar_inner_diameter_m": (0.024, 0.032),
+             "jar_inner_diameter_m": (0.025, 0.032),
+             "jar_volume_m3": (22e-6, 28e-6),
              "jar_inner_length_m": (0.036, 0.056),
-             "jar_fillet_radius_m": (0.002, 0.010)}
+             "jar_fillet_radius_m": (0.002, 0.0115)}
 #: every parameter a calibration can free, with its prior range (``--free NAME[=LO:HI]``)
 PRIORS = {**CALIBRATED, **APPARATUS}
 OUTPUTS = ("v_mean_m_s", "f_col_hz")
