@@ -62,6 +62,7 @@ from analysis.conditions import ConditionError, label, physics_table
 from analysis.diagnose import BaseParameter, calibrate_base, diagnose
 from analysis.measurements import DatasetError, load_dataset
 from analysis.open_model import BudgetError, OpenTwinModel, run_wall_s
+from analysis.sweep import parse_key_value
 from analysis.twin_model import (candidates, dataset_observations, reference_parameters,
                                  with_run_sd, yield_times_of)
 
@@ -679,6 +680,50 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                       rerun_runs=None if rr is None else rr["runs"])
 
 
+#: run-config keys the loop sets itself, never through ``--set``: the conditions, the seeds, the
+#: effects, and the base parameters it calibrates (open_model.DEFAULT_BASE); --frame and
+#: --record-s have their own options
+LOOP_OWNED_KEYS = frozenset({"frequency_hz", "ball_diameter_m", "seed", "effects", "frame",
+                             "record_s"})
+
+
+def run_settings(pairs, *, frame="lab", record_s=None):
+    """The run-config keys fixed in every twin run of the loop (``--set KEY=VALUE``, ``--frame``,
+    ``--record-s``), validated; None when there are none.
+
+    ``pairs`` are (key, value) tuples, e.g. the apparatus of the user's rig
+    (``jar_inner_diameter_m``, ``jar_fillet_radius_m``, ``stl_path``; docs/apparatus.md), the
+    contact law (``rolling_model``) or numerics (``dt_s``).
+
+    Raises
+    ------
+    ValueError - an unknown key, a key the loop sets or calibrates itself, a key given twice,
+        or a value the run config refuses
+    """
+    from analysis.config import twin_config
+    from analysis.open_model import DEFAULT_BASE
+    out = {}
+    for k, v in pairs:
+        if k not in twin_config.PARAMETERS:
+            raise ValueError("--set %s: not a run-config key (yade_scripts/twin_config.py)" % k)
+        if k in LOOP_OWNED_KEYS or k in DEFAULT_BASE:
+            raise ValueError("--set %s: the loop sets this itself (conditions, seeds, effects "
+                             "and the calibrated base parameters %s; --frame, --record-s)"
+                             % (k, ", ".join(DEFAULT_BASE)))
+        if k in out:
+            raise ValueError("--set %s given twice" % k)
+        out[k] = v
+    if record_s:
+        out["record_s"] = record_s
+    if frame != "lab":
+        out["frame"] = frame
+    try:
+        twin_config.complete_config(dict(out))
+    except twin_config.ConfigError as exc:
+        raise ValueError("--set: %s" % exc)
+    return out or None
+
+
 def _fmt_theta(t):
     return ", ".join("%s %.4g" % (k, v) for k, v in t.items())
 
@@ -910,6 +955,12 @@ def main(argv=None):
                     "runs: another frame is another run id)")
     ap.add_argument("--record-s", type=float, default=None,
                     help="recorded time per twin run [s] (default the run config's 0.5 s)")
+    ap.add_argument("--set", action="append", default=[], dest="settings", metavar="KEY=VALUE",
+                    type=parse_key_value,
+                    help="run-config key fixed in every twin run (repeatable): your rig's "
+                    "apparatus, e.g. jar_inner_diameter_m=0.028 jar_fillet_radius_m=0.01 or "
+                    "stl_path=my_jar.stl (docs/apparatus.md), rolling_model, dt_s; not the "
+                    "conditions, seeds, effects or the calibrated base parameters")
     ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
     ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
                     help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")
@@ -934,10 +985,7 @@ def main(argv=None):
             from analysis.config import FAKE_RUNS_DIR
             from analysis.fake_twin import run_fake_twin
             runner, runs_dir = run_fake_twin, FAKE_RUNS_DIR
-        base_config = {"record_s": a.record_s} if a.record_s else {}
-        if a.frame != "lab":
-            base_config["frame"] = a.frame
-        base_config = base_config or None
+        base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
         if a.dry_run:
             m = OpenTwinModel(ds.conditions, yield_times_of(ds),
                               velocity_frame=ds.velocity_frame, replicates=a.replicates,

@@ -520,3 +520,35 @@ def test_unconverged_refits_state_an_se_as_large_as_their_last_step():
     se = tc["final"].stderr["E1"]
     assert se >= step - 1e-12
     assert abs(tc["added"]["E1"] - 0.3) <= 2 * se
+
+
+def test_run_settings_fix_the_rig_and_refuse_what_the_loop_owns():
+    s = loop.run_settings([("jar_inner_diameter_m", 0.03), ("rolling_model", "constant_torque")],
+                          frame="jar", record_s=0.3)
+    assert s == {"jar_inner_diameter_m": 0.03, "rolling_model": "constant_torque",
+                 "frame": "jar", "record_s": 0.3}
+    assert loop.run_settings([]) is None
+    for pairs, msg in [([("restitution", 0.3)], "sets this itself"),
+                       ([("frequency_hz", 25.0)], "sets this itself"),
+                       ([("bogus_m", 1.0)], "not a run-config key"),
+                       ([("jar_inner_length_m", 0.05)], "needs jar_inner_diameter_m"),
+                       ([("rolling_model", "cdt")], "rolling_model"),
+                       ([("dt_s", 1e-6), ("dt_s", 2e-6)], "twice")]:
+        with pytest.raises(ValueError, match=msg):
+            loop.run_settings(pairs)
+
+
+def test_loop_set_reaches_every_run_and_bad_set_is_exit_2(fake_dataset, tmp_path, capsys):
+    out = tmp_path / "o"
+    assert loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
+                      "--set", "amplitude_m=0.013"]) == 2
+    assert "sets this itself" in capsys.readouterr().err and not out.exists()
+    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--dry-run",
+                    "--set", "jar_inner_diameter_m=0.03"])
+    assert rc == 0
+    from analysis.open_model import OpenTwinModel
+    from analysis.measurements import load_dataset
+    ds = load_dataset(fake_dataset)
+    m = OpenTwinModel(ds.conditions, {}, velocity_frame=ds.velocity_frame,
+                      base_config={"jar_inner_diameter_m": 0.03})
+    assert all(c.get("jar_inner_diameter_m") == 0.03 for c in m.plan("all")["config"])
