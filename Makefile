@@ -11,13 +11,13 @@ export OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
-        bench-dem bench-profile bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
+        bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
         signatures hidden-demo bench-hidden loop open-world calibrate
 
 help:
 	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
 	@echo "make test   - the test suite (installs YADE and the venv when missing)"
-	@echo "make bench-dem | bench-profile | bench-tracking | bench-predict | bench-sweep - benchmarks"
+	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks"
 	@echo "make hidden-demo - hide an effect in twin data, find it blind, add it -> results/hidden_demo/"
 	@echo "make bench-hidden - the hidden-effect suite (rank-1 rate, decoy, nothing-missing, chi2)"
 	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset"
@@ -68,6 +68,10 @@ bench-dem: setup
 # where a twin run's time goes (YADE's engine timers, in flight and in contact)
 bench-profile: setup
 	$(VPY) -m analysis.bench.profile
+
+# the whole loop on 6 conditions never run: empty cache, then cached (about 40 min)
+bench-loop: setup
+	$(VPY) -m analysis.bench.loop_cold
 
 bench-tracking: venv
 	$(VPY) -m analysis.bench.tracking
