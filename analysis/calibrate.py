@@ -253,6 +253,7 @@ class CalibrationResult:
     acceptance: float = float("nan")
     emulator: object = None
     bounds: dict = field(default_factory=dict)
+    base_config: dict = field(default_factory=dict)
 
     def to_frame(self):
         """Per parameter: mean, sd, q2.5, q50, q97.5, map, prior lower, prior upper."""
@@ -373,7 +374,8 @@ def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_
     n_validation : int - seeds of the validation runs at the posterior mean (0: none)
     v_rel_sd : float - relative measurement sd of v_mean when the dataset has none [-]
     f_col_sd_hz : float - measurement sd of f_col when the dataset has none [Hz]
-    base_config : dict, optional - config keys fixed in every run (record_s, dt_s, ...)
+    base_config : dict, optional - config keys fixed in every run (record_s, dt_s, the jar,
+        ...); recorded in the result (``summary.json``: ``base_config``)
     exclude_modes : list of str, optional - motion_mode values left out of the emulator's
         training data (default: none; the counts per mode are always reported)
     operator : {'auto', 'camera', 'summary'} - observation function, see :func:`observe`
@@ -516,7 +518,8 @@ def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_
         params=mean, stderr=sd, interval=interval, map_params=map_params, samples=samples,
         comparison=comp, residuals=residuals, design=design, loo=em.loo_,
         n_parameter_sets=n_sets + (1 if n_validation > 0 else 0), n_runs=len(design),
-        n_failed=n_failed, history=history, acceptance=acc, emulator=em, bounds=bounds)
+        n_failed=n_failed, history=history, acceptance=acc, emulator=em, bounds=bounds,
+        base_config=dict(base_config or {}))
 
 
 # ------------------------------------------------------------------------------------- CLI
@@ -552,6 +555,8 @@ def _write_results(res, tmp, measurements_name):
                "n_runs": res.n_runs, "n_failed_runs": res.n_failed,
                "acceptance_fraction": res.acceptance,
                "params": res.params.to_dict(), "stderr": res.stderr.to_dict(),
+               "bounds": {k: list(v) for k, v in res.bounds.items()},
+               "base_config": res.base_config,
                "motion_modes": (res.design["motion_mode"].astype(str).value_counts().to_dict()
                                 if "motion_mode" in res.design else {})}
     (tmp / "summary.json").write_text(json.dumps(summary, indent=1))

@@ -182,3 +182,27 @@ def test_cli_free_and_set_clash_or_unknown_is_exit_2_without_output(tmp_path, ca
                      "--set", "amplitude_m=0.013"]) == 2
     assert "amplitude_m" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_identification_page_and_profile_from_a_calibration(tmp_path):
+    """A calibration with an apparatus parameter free (FAKE twin, small budget) -> the study
+    page, the posterior correlations and the profile the demo reads; the fixed keys recorded."""
+    import json
+    from analysis.studies import apparatus_identification as ai
+    out = tmp_path / "cal"
+    assert cal.main(["--fake", "--out", str(out), "--free", "amplitude_m",
+                     "--free", "restitution", "--set", "rolling_friction=0.3",
+                     "--n-initial", "12", "--rounds", "0", "--n-validation", "2"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["base_config"] == {"rolling_friction": 0.3}
+    assert summary["bounds"]["amplitude_m"] == list(cal.APPARATUS["amplitude_m"])
+    prof = tmp_path / "profile.json"
+    assert ai.main(["--cal", str(out), "--profile", str(prof)]) == 0
+    p = json.loads(prof.read_text())
+    assert set(p["apparatus"]) == {"amplitude_m", "restitution"}
+    assert p["fixed"] == {"rolling_friction": 0.3}
+    lo, hi = cal.APPARATUS["amplitude_m"]
+    assert lo <= p["apparatus"]["amplitude_m"] <= hi
+    page = (out / "README.md").read_text()
+    assert "mean |diff|" in page and "amplitude_m" in page
+    assert (out / "posterior_correlation.csv").exists()

@@ -1,0 +1,138 @@
+"""The apparatus identified from a calibration: posterior, residual per condition, uniqueness.
+
+Reads a calibration folder written by ``python -m analysis.calibrate`` with apparatus
+parameters free (``--free``), e.g. ``results/apparatus/identify_paper_dem`` - the jar and stroke
+that make the twin, at the paper's contact parameters, reproduce the paper's own EDEM speeds
+(``data/measurements/paper_dem_table3``) - and writes beside it ``README.md`` (the study page)
+and ``posterior_correlation.csv``; with ``--profile FILE`` also the identified apparatus as a
+run-config fragment (JSON: the posterior means rounded to 3 significant digits, the fixed keys
+of the calibration's runs), the one place the demo and the loop read "the twin of the paper's
+mill" from.
+
+    python -m analysis.studies.apparatus_identification [--cal DIR] [--profile FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.config import RESULTS_DIR
+
+CAL = RESULTS_DIR / "apparatus" / "identify_paper_dem"
+PROFILE = RESULTS_DIR / "apparatus" / "paper_apparatus.json"
+#: goals of the identification (issue "a twin of the real mill"): twin vs the target column
+GOAL_MEAN_PCT, GOAL_MAX_PCT = 1.5, 3.0
+
+
+def load(cal_dir):
+    cal_dir = Path(cal_dir)
+    params = pd.read_csv(cal_dir / "parameters.csv", index_col=0)
+    comp = pd.read_csv(cal_dir / "table3_comparison.csv")
+    samples = pd.read_csv(cal_dir / "posterior_samples.csv")
+    summary = json.loads((cal_dir / "summary.json").read_text())
+    design = pd.read_csv(cal_dir / "design_runs.csv")
+    return params, comp, samples, summary, design
+
+
+def residuals(comp: pd.DataFrame) -> pd.DataFrame:
+    """Per condition: target v, the twin's mean at the posterior mean, the difference [%]."""
+    t = comp[["condition_id", "frequency_hz", "ball_diameter_mm", "v_mean_measured_m_s",
+              "v_mean_twin_m_s", "v_mean_twin_sd_m_s"]].copy()
+    t["diff_pct"] = 100 * (t["v_mean_twin_m_s"] / t["v_mean_measured_m_s"] - 1)
+    return t
+
+
+def shape(t: pd.DataFrame, col: str) -> dict:
+    from analysis.studies.apparatus_screen import shape_figures
+    return shape_figures(1e3 * t[col] / t["frequency_hz"], t["ball_diameter_mm"],
+                         t["frequency_hz"])
+
+
+def write(cal_dir, params, comp, samples, summary, base, profile=None):
+    cal_dir = Path(cal_dir)
+    names = list(params.index)
+    corr = samples[names].corr()
+    corr.to_csv(cal_dir / "posterior_correlation.csv", float_format="%.3f")
+    t = residuals(comp)
+    ok = t["diff_pct"].notna()
+    mean_abs, max_abs = t.loc[ok, "diff_pct"].abs().mean(), t.loc[ok, "diff_pct"].abs().max()
+    tw, tg = shape(t[ok], "v_mean_twin_m_s"), shape(t[ok], "v_mean_measured_m_s")
+    lines = ["# The apparatus identified: %s" % summary.get("dataset", ""), "",
+             "Calibration folder `%s` (`python -m analysis.calibrate --free ...`), fixed in "
+             "every run: %s. %d parameter sets, %d twin runs (%d failed); the posterior of a "
+             "GP emulator of the twin sampled with emcee; then the real twin at the posterior "
+             "mean. Regenerate this page: `python -m analysis.studies.apparatus_identification "
+             "--cal %s`." % (cal_dir.name, ", ".join("%s %s" % kv for kv in base.items()) or
+                             "-", summary["n_parameter_sets"], summary["n_runs"],
+                             summary["n_failed_runs"], cal_dir), "",
+             "## Posterior", "",
+             "| parameter | mean | sd | 95 % interval | prior range | interval / prior width |",
+             "|---|---|---|---|---|---|"]
+    for k, r in params.iterrows():
+        width = (r["q97.5"] - r["q2.5"]) / (r["prior_upper"] - r["prior_lower"])
+        lines.append("| %s | %.4g | %.2g | [%.4g, %.4g] | %.4g - %.4g | %.2f |"
+                     % (k, r["mean"], r["sd"], r["q2.5"], r["q97.5"], r["prior_lower"],
+                        r["prior_upper"], width))
+    strong = [(a, b, corr.loc[a, b]) for i, a in enumerate(names) for b in names[i + 1:]
+              if abs(corr.loc[a, b]) >= 0.5]
+    lines += ["", "How unique: an interval / prior width near 1 means the speeds do not pin "
+              "that parameter. Posterior correlations |r| >= 0.5 (trade-offs: moving one along "
+              "the other keeps the speeds): %s." % ("; ".join("%s-%s %+.2f" % s for s in strong)
+                                                    or "none"), "",
+              "## Residual per condition (twin at the posterior mean)", "",
+              "| condition | target v [m/s] | twin v [m/s] | twin sd | diff [%] |",
+              "|---|---|---|---|---|"]
+    for r in t.itertuples():
+        lines.append("| %s | %.3f | %.3f | %.3f | %+.2f |"
+                     % (r.condition_id, r.v_mean_measured_m_s, r.v_mean_twin_m_s,
+                        r.v_mean_twin_sd_m_s, r.diff_pct))
+    lines += ["", "mean |diff| %.2f %%, max %.2f %% (goal <= %.1f %% and <= %.1f %%)."
+              % (mean_abs, max_abs, GOAL_MEAN_PCT, GOAL_MAX_PCT), "",
+              "Shape: v/f [mm] 17.5 mm ball %.1f (target %.1f), 20.6 mm ball %.1f (%.1f); "
+              "split %+.1f %% (%+.1f %%); 22.5 -> 30 Hz change of v/f %+.1f %% (%+.1f %%) and "
+              "%+.1f %% (%+.1f %%)."
+              % (tw["vf_17_5_mm"], tg["vf_17_5_mm"], tw["vf_20_6_mm"], tg["vf_20_6_mm"],
+                 tw["split_pct"], tg["split_pct"], tw["trend_17_5_pct"], tg["trend_17_5_pct"],
+                 tw["trend_20_6_pct"], tg["trend_20_6_pct"]), ""]
+    for f in ("posterior_pairs.png", "parity.png"):
+        if (cal_dir / f).exists():
+            lines.append("![%s](%s)" % (f, f))
+    (cal_dir / "README.md").write_text("\n".join(lines) + "\n")
+    if profile:
+        prof = {"source": str(cal_dir), "dataset": summary.get("dataset", ""),
+                "apparatus": {k: float("%.3g" % params.loc[k, "mean"]) for k in names},
+                "posterior_sd": {k: float("%.2g" % params.loc[k, "sd"]) for k in names},
+                "fixed": base, "mean_abs_diff_pct": round(float(mean_abs), 3),
+                "max_abs_diff_pct": round(float(max_abs), 3)}
+        Path(profile).parent.mkdir(parents=True, exist_ok=True)
+        Path(profile).write_text(json.dumps(prof, indent=1) + "\n")
+    return mean_abs, max_abs
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--cal", default=str(CAL), help="calibration folder")
+    p.add_argument("--base", default=None,
+                   help="JSON of the run-config keys the calibration held fixed (its --set; "
+                   "default: summary.json's base_config)")
+    p.add_argument("--profile", default=None, help="write the identified apparatus here (JSON)")
+    a = p.parse_args(argv)
+    try:
+        params, comp, samples, summary, design = load(a.cal)
+        base = json.loads(a.base) if a.base else summary.get("base_config", {})
+    except (OSError, ValueError) as exc:
+        print("apparatus_identification: error: %s" % exc, file=sys.stderr)
+        return 2
+    m, x = write(a.cal, params, comp, samples, summary, base, a.profile)
+    print("twin at the posterior mean vs %s: mean |diff| %.2f %%, max %.2f %%"
+          % (summary.get("dataset", ""), m, x))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
