@@ -18,6 +18,11 @@ FAKE_RUNS_DIR = RESULTS_DIR / "runs_fake"
 #: tracks of datasets' films, cached by the film's content hash (analysis.videos)
 TRACK_CACHE_DIR = RESULTS_DIR / "track_cache"
 DEMO_DIR = RESULTS_DIR / "demo"
+#: the twin of the paper's mill (docs/apparatus.md): run-config fragments written by
+#: analysis.studies.apparatus_identification - the apparatus identified from the paper's EDEM
+#: column at its contact parameters, and the contact + apparatus calibrated on Table 3
+PAPER_APPARATUS_PROFILE = RESULTS_DIR / "apparatus" / "paper_apparatus.json"
+MEASURED_APPARATUS_PROFILE = RESULTS_DIR / "apparatus" / "measured_apparatus.json"
 STUDIES_DIR = RESULTS_DIR / "studies"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"
 KINETICS_DIR = RESULTS_DIR / "kinetics"

@@ -28,7 +28,8 @@ import time
 import numpy as np
 import pandas as pd
 
-from analysis.config import DEMO_DIR, PAPER_TABLE3_DIR, twin_config
+from analysis.config import (DEMO_DIR, MEASURED_APPARATUS_PROFILE, PAPER_APPARATUS_PROFILE,
+                             PAPER_TABLE3_DIR, twin_config)
 
 
 def measured_table(dataset_dir=PAPER_TABLE3_DIR):
@@ -41,14 +42,37 @@ def measured_table(dataset_dir=PAPER_TABLE3_DIR):
     return t
 
 
-def demo_configs(conditions, replicates, record_s):
+def demo_configs(conditions, replicates, record_s, base=None):
+    """Run configs at every condition x seed; ``base`` (a profile's run-config fragment: the
+    apparatus, contact law, contact parameters) under the condition keys."""
     configs = []
     for c in conditions.itertuples():
         for seed in range(replicates):
-            configs.append({"frequency_hz": float(c.frequency_hz),
-                            "ball_diameter_m": float(c.ball_diameter_mm) * 1e-3,
-                            "record_s": record_s, "seed": seed})
+            cfg = dict(base or {})
+            cfg.update({"frequency_hz": float(c.frequency_hz),
+                        "ball_diameter_m": float(c.ball_diameter_mm) * 1e-3,
+                        "record_s": record_s, "seed": seed})
+            configs.append(cfg)
     return configs
+
+
+#: the paper's contact parameters (its Table 2)
+PAPER_CONTACT = {"restitution": 0.11, "static_friction": 0.7, "rolling_friction": 0.5}
+
+
+def load_profile(path):
+    """A twin-of-the-mill profile's run-config fragment (``config``) and its description, or
+    (None, reason) when the file does not exist. The fragment is validated as a run config."""
+    import json
+    from pathlib import Path
+    path = Path(path)
+    if not path.exists():
+        return None, "%s not found" % path
+    prof = json.loads(path.read_text())
+    cfg = dict(prof["config"])
+    twin_config.complete_config(dict(cfg))     # ConfigError when the profile is not a config
+    return cfg, "%s (fitted %s on %s)" % (path.name, ", ".join(prof.get("free", [])),
+                                          prof.get("dataset", "?"))
 
 
 def summarize_runs(conditions, configs, sweep_table):
@@ -115,12 +139,12 @@ def write_page(table, out_dir, meta, extra=()):
             "v_mean_twin_sd_m_s", "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz",
             "f_col_diff_pct", "motion_modes", "n_replicates"]
     lines = ["# Demo: the twin at the paper's 8 conditions", "",
-             "Paper contact parameters (C_R = 0.11, SF = 0.7, RF = 0.5), jar amplitude "
-             "A = %.1f mm, dt = %g s, %d replicate(s) per condition, %.2f s recorded after the "
-             "detected steady state. Speeds and collision frequencies pass through the same "
-             "observation operator as a video (2134 fps, lab frame). Wall time %.0f s."
-             % (meta["amplitude_m"] * 1e3, meta["dt_s"], meta["replicates"], meta["record_s"],
-                meta["wall_s"]), "",
+             "Paper contact parameters (C_R = 0.11, SF = 0.7, RF = 0.5) in %s: jar "
+             "amplitude A = %.1f mm, dt = %g s, %d replicate(s) per condition, %.2f s recorded "
+             "after the detected steady state. Speeds and collision frequencies pass through "
+             "the same observation operator as a video (2134 fps, lab frame). Wall time %.0f s."
+             % (meta.get("apparatus", "the default jar and stroke"), meta["amplitude_m"] * 1e3,
+                meta["dt_s"], meta["replicates"], meta["record_s"], meta["wall_s"]), "",
              table[cols].to_markdown(index=False, floatfmt=".3g")
              if _has_tabulate() else "```\n" + table[cols].to_string(index=False) + "\n```", "",
              "mean |v error| = %.2f %%, max = %.2f %%; f_col within one collision of the "
@@ -187,12 +211,44 @@ def main(argv=None):
         return 2
     t0 = time.time()
     cond = measured_table()
-    configs = demo_configs(cond, a.replicates, a.record_s)
-    res = run_sweep(configs, workers=a.workers)
-    table = summarize_runs(cond, configs, res.table)
+    try:
+        paper_base, paper_src = load_profile(PAPER_APPARATUS_PROFILE)
+        cal_base, cal_src = load_profile(MEASURED_APPARATUS_PROFILE)
+    except (ValueError, KeyError, OSError) as exc:
+        print("analysis.demo: error: a twin-of-the-mill profile is unusable: %s" % exc,
+              file=sys.stderr)
+        return 2
+    if paper_base is not None:
+        off = {k: paper_base.get(k) for k, v in PAPER_CONTACT.items() if paper_base.get(k) != v}
+        if off:
+            print("analysis.demo: error: %s does not hold the paper's contact parameters: %s"
+                  % (PAPER_APPARATUS_PROFILE, off), file=sys.stderr)
+            return 2
+        paper_words = "the apparatus identified from the paper's DEM column, %s" % paper_src
+    else:
+        paper_words = "the default jar and stroke (%s)" % paper_src
+    configs = demo_configs(cond, a.replicates, a.record_s, paper_base)
+    cal_configs = (demo_configs(cond, a.replicates, a.record_s, cal_base)
+                   if cal_base is not None else [])
+    res = run_sweep(configs + cal_configs, workers=a.workers)
+    table = summarize_runs(cond, configs, res.table.iloc[:len(configs)])
     dem = 100 * (table["v_mean_twin_observed_m_s"] / table["v_mean_dem_paper_m_s"] - 1)
     table["v_diff_dem_paper_pct"] = dem
-    cal, cal_line, theta = calibrated_lines(cond)
+    if cal_base is not None:
+        ct = summarize_runs(cond, cal_configs,
+                            res.table.iloc[len(configs):].reset_index(drop=True))
+        cal = ct[["condition_id", "frequency_hz", "ball_diameter_mm", "v_mean_measured_m_s",
+                  "v_mean_twin_observed_m_s", "v_mean_twin_sd_m_s", "v_diff_pct",
+                  "n_replicates", "motion_modes"]]
+        cal_line = ("calibrated twin vs measured: mean |v error| %.2f %%, max %.2f %%"
+                    % (ct["v_diff_pct"].abs().mean(), ct["v_diff_pct"].abs().max()))
+        cal_words = ("the twin at the contact and apparatus parameters calibrated on Table 3, "
+                     "%s, %d seeds per condition" % (cal_src, a.replicates))
+    else:
+        cal, cal_line, theta = calibrated_lines(cond)
+        cal_words = ("the real twin at the calibration's posterior mean %s, 4 seeds per "
+                     "condition, committed in results/signatures"
+                     % ", ".join("%s %.4g" % kv for kv in theta.items()))
     paper_meas = ("paper parameters vs measured: mean |v error| %.2f %%, max %.2f %%"
                   % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max()))
     paper_dem = ("paper parameters vs paper DEM: mean |v diff| %.2f %%, max %.2f %%"
@@ -209,13 +265,11 @@ def main(argv=None):
         fig.savefig(tmp / "demo.png", dpi=120)
         plt.close(fig)
         dflt = twin_config.default_config()
-        write_page(table, tmp, {"amplitude_m": dflt["amplitude_m"], "dt_s": dflt["dt_s"],
+        amp = (paper_base or {}).get("amplitude_m", dflt["amplitude_m"])
+        write_page(table, tmp, {"amplitude_m": amp, "dt_s": dflt["dt_s"],
                                 "replicates": a.replicates, "record_s": a.record_s,
-                                "wall_s": time.time() - t0},
-                   extra=[paper_meas, paper_dem, cal_line + " (the real twin at the "
-                          "calibration's posterior mean %s, 4 seeds per condition, committed "
-                          "in results/signatures)" % ", ".join("%s %.4g" % kv
-                                                               for kv in theta.items())])
+                                "wall_s": time.time() - t0, "apparatus": paper_words},
+                   extra=[paper_meas, paper_dem, cal_line + " (%s)" % cal_words])
         publish_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

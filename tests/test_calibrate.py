@@ -199,10 +199,11 @@ def test_identification_page_and_profile_from_a_calibration(tmp_path):
     prof = tmp_path / "profile.json"
     assert ai.main(["--cal", str(out), "--profile", str(prof)]) == 0
     p = json.loads(prof.read_text())
-    assert set(p["apparatus"]) == {"amplitude_m", "restitution"}
-    assert p["fixed"] == {"rolling_friction": 0.3}
+    assert set(p["free"]) == {"amplitude_m", "restitution"}
+    assert set(p["config"]) == {"amplitude_m", "restitution", "rolling_friction"}
+    assert p["config"]["rolling_friction"] == 0.3
     lo, hi = cal.APPARATUS["amplitude_m"]
-    assert lo <= p["apparatus"]["amplitude_m"] <= hi
+    assert lo <= p["config"]["amplitude_m"] <= hi
     page = (out / "README.md").read_text()
     assert "mean |diff|" in page and "amplitude_m" in page
     assert (out / "posterior_correlation.csv").exists()

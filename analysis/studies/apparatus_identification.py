@@ -5,8 +5,8 @@ parameters free (``--free``), e.g. ``results/apparatus/identify_paper_dem`` - th
 that make the twin, at the paper's contact parameters, reproduce the paper's own EDEM speeds
 (``data/measurements/paper_dem_table3``) - and writes beside it ``README.md`` (the study page)
 and ``posterior_correlation.csv``; with ``--profile FILE`` also the identified apparatus as a
-run-config fragment (JSON: the posterior means rounded to 3 significant digits, the fixed keys
-of the calibration's runs), the one place the demo and the loop read "the twin of the paper's
+run-config fragment (JSON ``config``: the fixed keys of the calibration's runs and the posterior
+means rounded to 3 significant digits), the one place the demo reads "the twin of the paper's
 mill" from.
 
     python -m analysis.studies.apparatus_identification [--cal DIR] [--profile FILE]
@@ -24,7 +24,6 @@ import pandas as pd
 from analysis.config import RESULTS_DIR
 
 CAL = RESULTS_DIR / "apparatus" / "identify_paper_dem"
-PROFILE = RESULTS_DIR / "apparatus" / "paper_apparatus.json"
 #: goals of the identification (issue "a twin of the real mill"): twin vs the target column
 GOAL_MEAN_PCT, GOAL_MAX_PCT = 1.5, 3.0
 
@@ -104,10 +103,11 @@ def write(cal_dir, params, comp, samples, summary, base, profile=None):
             lines.append("![%s](%s)" % (f, f))
     (cal_dir / "README.md").write_text("\n".join(lines) + "\n")
     if profile:
+        fitted = {k: float("%.3g" % params.loc[k, "mean"]) for k in names}
         prof = {"source": str(cal_dir), "dataset": summary.get("dataset", ""),
-                "apparatus": {k: float("%.3g" % params.loc[k, "mean"]) for k in names},
+                "config": dict(base, **fitted), "free": names,
                 "posterior_sd": {k: float("%.2g" % params.loc[k, "sd"]) for k in names},
-                "fixed": base, "mean_abs_diff_pct": round(float(mean_abs), 3),
+                "mean_abs_diff_pct": round(float(mean_abs), 3),
                 "max_abs_diff_pct": round(float(max_abs), 3)}
         Path(profile).parent.mkdir(parents=True, exist_ok=True)
         Path(profile).write_text(json.dumps(prof, indent=1) + "\n")
