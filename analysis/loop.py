@@ -258,6 +258,29 @@ def _stage_row(stage, fit, n_params):
             "p_value": fit.p_value, "n_params": n_params}
 
 
+def twin_confirmation(without, with_effects, diags, added, nulls=()) -> dict | None:
+    """Does the twin confirm the effects the model added?
+
+    ``without`` and ``with_effects`` are fits of the model shifted onto the twin's reruns (the
+    twin-corrected fits at the calibrated point, and at the final point with ``added`` on).
+    The effects' chi2 gain there (the objective, -2 log likelihood) is set against what the
+    diagnosis asked of them at their steps (the Bonferroni threshold times the bootstrap's
+    scale, summed over the added effects; ``nulls`` are :func:`forward_select`'s 'null' rows,
+    one per bootstrapped step). None when either fit is missing or nothing was added.
+
+    Returns dict: gain_chi2, needed_chi2, confirmed (gain >= needed)."""
+    if without is None or with_effects is None or not added:
+        return None
+    scales = {int(n["step"]): float(n["scale"]) for n in nulls}
+    need = 0.0
+    for step, d in enumerate(diags, start=1):
+        if d.best in added:
+            scale = scales.get(step, 1.0)
+            need += float(d.threshold_delta_chi2) * (scale if np.isfinite(scale) else 1.0)
+    gain = float(without.objective - with_effects.objective)
+    return {"gain_chi2": gain, "needed_chi2": need, "confirmed": bool(gain >= need)}
+
+
 def rerun_table(dataset, theta, added, *, replicates, seed0, sweep_kw, base_config,
                 flight_ids, budget_runs=None):
     """The twin itself at the final parameters with the added DEM effects on (fresh seeds):
@@ -632,6 +655,13 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         stair += tc["stairs"]
         eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
     staircase = pd.DataFrame(stair)
+    confirm = None
+    if rerun and polish and an["pre"]:
+        confirm = twin_confirmation(cal, final, diags, added, fs["null"])
+        if confirm is not None:
+            log("twin confirmation: chi2 gain %.1f on the twin-corrected fits, %.1f needed: %s"
+                % (confirm["gain_chi2"], confirm["needed_chi2"],
+                   "confirmed" if confirm["confirmed"] else "NOT confirmed"))
 
     # --- tables
     steps = pd.concat(step_rows, ignore_index=True) if step_rows else pd.DataFrame()
@@ -657,7 +687,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         comp["twin_rerun"] = rr["prediction"].to_numpy(float)
         comp["z_twin_rerun"] = rr["z"].to_numpy(float)
     status, verdict = _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model,
-                                     alpha)
+                                     alpha, confirm)
     info = {"dataset": dataset.name, "velocity_frame": dataset.velocity_frame,
             "conditions": [dict(r, label=label(r["frequency_hz"], r["ball_diameter_mm"],
                                               r["amplitude_mm"]))
@@ -669,7 +699,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             "flight_conditions": fl_ids, "alpha": alpha,
             "tracking": None if tracking is None else tracking.to_dict("records"),
             "bootstrap": fs["null"], "twin_corrected": polish,
-            "twin_corrected_calibration": an["pre"],
+            "twin_corrected_calibration": an["pre"], "twin_confirmation": confirm,
             "beyond_model": out}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
@@ -755,7 +785,8 @@ def _diagnosis_table(steps, added, eff_se):
     return t
 
 
-def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha):
+def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
+                   confirm=None):
     head = "calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof)
     parts = []
     if added:
@@ -804,6 +835,13 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha):
         parts.append("the final point lies beyond the model's measured responses (%s; no "
                      "re-anchoring left): its figures there are extrapolated"
                      % ", ".join("%s %+.1f steps" % kv for kv in beyond.items()))
+    if confirm is not None:
+        parts.append("%s: with %s, the model shifted onto the twin's reruns gains chi2 %.1f "
+                     "(%.1f needed)"
+                     % ("the twin confirms it" if confirm["confirmed"] else
+                        "the twin does NOT confirm it (treat it as a suggestion)",
+                        "these effects" if len(added) > 1 else "the effect",
+                        confirm["gain_chi2"], confirm["needed_chi2"]))
     if rr is not None:
         parts.append("the real twin rerun at the final parameters: chi2/dof %.2f"
                      % (rr["chi2"] / max(rr["dof"], 1)))

@@ -552,3 +552,39 @@ def test_loop_set_reaches_every_run_and_bad_set_is_exit_2(fake_dataset, tmp_path
     m = OpenTwinModel(ds.conditions, {}, velocity_frame=ds.velocity_frame,
                       base_config={"jar_inner_diameter_m": 0.03})
     assert all(c.get("jar_inner_diameter_m") == 0.03 for c in m.plan("all")["config"])
+
+
+@pytest.mark.parametrize("hidden, confirmed", [(0.0, False), (0.3, True)])
+def test_twin_confirms_a_real_effect_and_not_the_models_false_alarm(hidden, confirmed):
+    """The model alone adds E1 in both cases (no effect hidden: its off-anchor error looks
+    like E1). On the model shifted onto the 'twin''s reruns, E1 gains what the diagnosis asked
+    for only where the twin holds it (E1 = 0.3 hidden)."""
+    from analysis.diagnose import calibrate_base
+    m = ToyModel(se=0.002)
+    x2 = ((m.f - 26) / 6) ** 2
+
+    def twin(theta, eff):
+        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
+        y[:, 0] += 1.0 * x2 * (theta["a"] - 2.0)
+        return pd.Series(y.ravel(), index=m.keys)
+
+    def rerun(th, eff):
+        return twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()
+
+    rng = np.random.default_rng(5)
+    mu = twin({"a": 2.2, "b": 0.4}, {"E1": hidden}).to_numpy()
+    obs = pd.DataFrame({"condition_id": m.keys.get_level_values(0),
+                        "observable": m.keys.get_level_values(1),
+                        "value": mu + 0.01 * rng.standard_normal(len(mu)), "sd": 0.01})
+    raw = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None)
+    assert "E1" in raw["added"]
+    _, cal = calibrate_base(m.predict, obs, m.base_params(), model_se=m.model_se())
+    theta = {k: float(cal.params[k]) for k in ("a", "b")}
+    without = loop.twin_corrected_refits(m, obs, theta, {}, cal, rerun, max_refits=3,
+                                         log=lambda s: None)["final"]
+    with_e = loop.twin_corrected_refits(m, obs, raw["theta"], raw["added"], raw["last_fit"],
+                                        rerun, max_refits=3, log=lambda s: None)["final"]
+    c = loop.twin_confirmation(without, with_e, raw["diagnoses"], raw["added"], raw["null"])
+    assert c["confirmed"] is confirmed, c
+    assert c["needed_chi2"] == pytest.approx(raw["diagnoses"][0].threshold_delta_chi2)
+    assert loop.twin_confirmation(None, with_e, raw["diagnoses"], raw["added"]) is None
