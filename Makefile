@@ -12,7 +12,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        signatures hidden-demo bench-hidden loop open-world calibrate
+        signatures hidden-demo bench-hidden loop open-world calibrate apparatus
 
 help:
 	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
@@ -119,6 +119,28 @@ open-world: setup
 
 calibrate: setup
 	$(VPY) -m analysis.calibrate --out results/calibration
+
+# the twin of the paper's mill (docs/apparatus.md): one-at-a-time screen, the apparatus
+# identified from the paper's EDEM column at its contact parameters, then contact + apparatus
+# calibrated on the measurements -> results/apparatus/ (about 2 h on 2 cores, cached runs)
+PAPER_CONTACT_SET = --set restitution=0.11 --set static_friction=0.7 --set rolling_friction=0.5
+EDEM_LAW_SET = --set rolling_model=constant_torque --set frame=jar
+apparatus: setup
+	$(VPY) -m analysis.studies.apparatus_screen
+	$(VPY) -m analysis.calibrate --dataset data/measurements/paper_dem_table3 \
+	  --out results/apparatus/identify_paper_dem --operator summary --v-rel-sd 0.01 \
+	  --free amplitude_m --free jar_inner_diameter_m --free jar_fillet_radius_m \
+	  --free jar_volume_m3 $(PAPER_CONTACT_SET) $(EDEM_LAW_SET) \
+	  --n-initial 40 --n-refine 10 --rounds 2 --n-validation 4
+	$(VPY) -m analysis.studies.apparatus_identification --cal results/apparatus/identify_paper_dem \
+	  --profile results/apparatus/paper_apparatus.json
+	$(VPY) -m analysis.calibrate --dataset data/measurements/paper_table3 \
+	  --out results/apparatus/calibrate_measured --operator summary \
+	  --base-profile results/apparatus/paper_apparatus.json \
+	  --free restitution --free static_friction --free rolling_friction --free amplitude_m \
+	  --free jar_fillet_radius_m --n-initial 40 --n-refine 10 --rounds 2 --n-validation 4
+	$(VPY) -m analysis.studies.apparatus_identification --cal results/apparatus/calibrate_measured \
+	  --profile results/apparatus/measured_apparatus.json
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv

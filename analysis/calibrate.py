@@ -596,6 +596,10 @@ def main(argv=None):
                         "trajectories exist)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config key fixed in every run, e.g. record_s=0.5 (repeatable)")
+    p.add_argument("--base-profile", default=None, metavar="FILE",
+                   help="a profile JSON (its 'config': run-config keys, e.g. "
+                        "results/apparatus/paper_apparatus.json) fixed in every run, except "
+                        "the keys freed by --free; --set overrides it")
     p.add_argument("--free", action="append", default=None, metavar="NAME[=LO:HI]",
                    help="a parameter to calibrate, with optional bounds inside its declared "
                         "range (repeatable; default: %s; apparatus: %s)"
@@ -609,6 +613,13 @@ def main(argv=None):
         bounds = parse_free(args.free)
         meas = load_measurements(args.dataset)
         base = {}
+        if args.base_profile:
+            try:
+                prof = json.loads(Path(args.base_profile).read_text())
+                base = {k: v for k, v in dict(prof["config"]).items() if k not in bounds}
+            except (KeyError, TypeError) as exc:
+                raise ValueError("--base-profile %s has no 'config' object (%s)"
+                                 % (args.base_profile, exc))
         for kv in args.set:
             if "=" not in kv:
                 raise MeasurementError("--set needs KEY=VALUE, got %r" % kv)

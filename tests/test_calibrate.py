@@ -207,3 +207,19 @@ def test_identification_page_and_profile_from_a_calibration(tmp_path):
     page = (out / "README.md").read_text()
     assert "mean |diff|" in page and "amplitude_m" in page
     assert (out / "posterior_correlation.csv").exists()
+
+
+def test_base_profile_fixes_its_keys_except_the_freed_ones(tmp_path, capsys):
+    import json
+    prof = tmp_path / "p.json"
+    prof.write_text(json.dumps({"config": {"rolling_friction": 0.3, "amplitude_m": 0.0141,
+                                           "restitution": 0.11}}))
+    out = tmp_path / "cal"
+    assert cal.main(["--fake", "--out", str(out), "--base-profile", str(prof),
+                     "--free", "restitution", "--n-initial", "8", "--rounds", "0",
+                     "--n-validation", "0"]) == 0
+    base = json.loads((out / "summary.json").read_text())["base_config"]
+    assert base == {"rolling_friction": 0.3, "amplitude_m": 0.0141}
+    prof.write_text(json.dumps({"nothing": 1}))
+    assert cal.main(["--fake", "--out", str(tmp_path / "c2"), "--base-profile", str(prof)]) == 2
+    assert "config" in capsys.readouterr().err
