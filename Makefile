@@ -135,7 +135,7 @@ apparatus: setup
 	$(VPY) -m analysis.studies.apparatus_identification --cal results/apparatus/identify_paper_dem \
 	  --profile results/apparatus/paper_apparatus.json
 	$(VPY) -m analysis.calibrate --dataset data/measurements/paper_table3 \
-	  --out results/apparatus/calibrate_measured --operator summary \
+	  --out results/apparatus/calibrate_measured --v-rel-sd 0.01 \
 	  --base-profile results/apparatus/paper_apparatus.json \
 	  --free restitution --free static_friction --free rolling_friction --free amplitude_m \
 	  --free jar_fillet_radius_m --n-initial 40 --n-refine 10 --rounds 2 --n-validation 4
