@@ -754,6 +754,25 @@ def run_settings(pairs, *, frame="lab", record_s=None):
     return out or None
 
 
+def with_assumed_v_sd(dataset, v_rel_sd):
+    """``dataset`` whose empty ``v_mean_sd_m_s`` cells hold ``v_rel_sd`` x v_mean_m_s (the
+    measurement sd the loop assumes where the data state none; stated sds are kept).
+
+    Raises
+    ------
+    ValueError - v_rel_sd not a finite number in (0, 0.5)
+    """
+    if not (isinstance(v_rel_sd, (int, float)) and math.isfinite(v_rel_sd)
+            and 0.0 < v_rel_sd < 0.5):
+        raise ValueError("--v-rel-sd must lie in (0, 0.5) (a fraction of v_mean), got %r"
+                         % (v_rel_sd,))
+    summ = dataset.summary.copy()
+    sd = pd.to_numeric(summ["v_mean_sd_m_s"], errors="coerce")
+    fill = sd.isna()
+    summ["v_mean_sd_m_s"] = sd.where(~fill, v_rel_sd * summ["v_mean_m_s"].astype(float))
+    return dataclasses.replace(dataset, summary=summ)
+
+
 def _fmt_theta(t):
     return ", ".join("%s %.4g" % (k, v) for k, v in t.items())
 
@@ -993,6 +1012,9 @@ def main(argv=None):
                     "runs: another frame is another run id)")
     ap.add_argument("--record-s", type=float, default=None,
                     help="recorded time per twin run [s] (default the run config's 0.5 s)")
+    ap.add_argument("--v-rel-sd", type=float, default=None, metavar="F",
+                    help="measurement sd of v_mean assumed where the dataset states none, as a "
+                    "fraction of v_mean (default 0.015; e.g. 0.01 for 1 %%)")
     ap.add_argument("--set", action="append", default=[], dest="settings", metavar="KEY=VALUE",
                     type=parse_key_value,
                     help="run-config key fixed in every twin run (repeatable): your rig's "
@@ -1010,6 +1032,8 @@ def main(argv=None):
         check_out_dir(a.out, [a.dataset])
         ds = load_dataset(a.dataset)
         physics_table(ds.conditions)
+        if a.v_rel_sd is not None:
+            ds = with_assumed_v_sd(ds, a.v_rel_sd)
         if a.replicates < 1 or a.diff_replicates < 1 or a.rerun_replicates < 1:
             raise ValueError("--replicates, --diff-replicates and --rerun-replicates must be "
                              ">= 1")

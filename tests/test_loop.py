@@ -588,3 +588,24 @@ def test_twin_confirms_a_real_effect_and_not_the_models_false_alarm(hidden, conf
     assert c["confirmed"] is confirmed, c
     assert c["needed_chi2"] == pytest.approx(raw["diagnoses"][0].threshold_delta_chi2)
     assert loop.twin_confirmation(None, with_e, raw["diagnoses"], raw["added"]) is None
+
+
+def test_assumed_v_sd_fills_only_empty_cells_and_bad_values_are_exit_2(fake_dataset, tmp_path,
+                                                                        capsys):
+    from analysis.measurements import load_dataset
+    ds = load_dataset(fake_dataset)
+    summ = ds.summary.copy()
+    summ["v_mean_sd_m_s"] = np.nan                    # a dataset that states no sd ...
+    summ.loc[summ.index[0], "v_mean_sd_m_s"] = 0.123  # ... but for one condition
+    import dataclasses
+    ds = dataclasses.replace(ds, summary=summ)
+    out = loop.with_assumed_v_sd(ds, 0.01).summary
+    assert out["v_mean_sd_m_s"].iloc[0] == 0.123
+    rest = out.iloc[1:]
+    assert np.allclose(rest["v_mean_sd_m_s"], 0.01 * rest["v_mean_m_s"].astype(float))
+    for bad in (0.0, 0.7, float("nan")):
+        with pytest.raises(ValueError, match="v-rel-sd"):
+            loop.with_assumed_v_sd(ds, bad)
+    assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--fake",
+                      "--v-rel-sd", "-1"]) == 2
+    assert "v-rel-sd" in capsys.readouterr().err and not (tmp_path / "o").exists()
