@@ -184,42 +184,36 @@ def test_cli_free_and_set_clash_or_unknown_is_exit_2_without_output(tmp_path, ca
     assert not out.exists()
 
 
-def test_identification_page_and_profile_from_a_calibration(tmp_path):
-    """A calibration with an apparatus parameter free (FAKE twin, small budget) -> the study
-    page, the posterior correlations and the profile the demo reads; the fixed keys recorded."""
+def test_identification_page_and_profile_from_a_calibration(tmp_path, capsys):
+    """A calibration with an apparatus parameter free and a base profile (FAKE twin, small
+    budget) -> the fixed keys recorded (the profile's, less the freed ones), the study page,
+    the posterior correlations and the profile the demo reads."""
     import json
     from analysis.studies import apparatus_identification as ai
+    base_prof = tmp_path / "base.json"
+    base_prof.write_text(json.dumps({"config": {"rolling_friction": 0.3, "amplitude_m": 0.0141,
+                                                "static_friction": 0.6}}))
     out = tmp_path / "cal"
     assert cal.main(["--fake", "--out", str(out), "--free", "amplitude_m",
-                     "--free", "restitution", "--set", "rolling_friction=0.3",
+                     "--free", "restitution", "--base-profile", str(base_prof),
+                     "--set", "static_friction=0.5",
                      "--n-initial", "12", "--rounds", "0", "--n-validation", "2"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["base_config"] == {"rolling_friction": 0.3}
+    assert summary["base_config"] == {"rolling_friction": 0.3, "static_friction": 0.5}
     assert summary["bounds"]["amplitude_m"] == list(cal.APPARATUS["amplitude_m"])
     prof = tmp_path / "profile.json"
     assert ai.main(["--cal", str(out), "--profile", str(prof)]) == 0
     p = json.loads(prof.read_text())
     assert set(p["free"]) == {"amplitude_m", "restitution"}
-    assert set(p["config"]) == {"amplitude_m", "restitution", "rolling_friction"}
+    assert set(p["config"]) == {"amplitude_m", "restitution", "rolling_friction",
+                                "static_friction"}
     assert p["config"]["rolling_friction"] == 0.3
     lo, hi = cal.APPARATUS["amplitude_m"]
     assert lo <= p["config"]["amplitude_m"] <= hi
     page = (out / "README.md").read_text()
     assert "mean |diff|" in page and "amplitude_m" in page
     assert (out / "posterior_correlation.csv").exists()
-
-
-def test_base_profile_fixes_its_keys_except_the_freed_ones(tmp_path, capsys):
-    import json
-    prof = tmp_path / "p.json"
-    prof.write_text(json.dumps({"config": {"rolling_friction": 0.3, "amplitude_m": 0.0141,
-                                           "restitution": 0.11}}))
-    out = tmp_path / "cal"
-    assert cal.main(["--fake", "--out", str(out), "--base-profile", str(prof),
-                     "--free", "restitution", "--n-initial", "8", "--rounds", "0",
-                     "--n-validation", "0"]) == 0
-    base = json.loads((out / "summary.json").read_text())["base_config"]
-    assert base == {"rolling_friction": 0.3, "amplitude_m": 0.0141}
-    prof.write_text(json.dumps({"nothing": 1}))
-    assert cal.main(["--fake", "--out", str(tmp_path / "c2"), "--base-profile", str(prof)]) == 2
+    base_prof.write_text(json.dumps({"nothing": 1}))
+    assert cal.main(["--fake", "--out", str(tmp_path / "c2"), "--base-profile",
+                     str(base_prof)]) == 2
     assert "config" in capsys.readouterr().err
