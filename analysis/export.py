@@ -140,12 +140,13 @@ def jar_mesh(meta: dict) -> tuple[np.ndarray, dict, list]:
     from geometry.jar import mesh_for_config
     given = meta.get("config") or {}
     cfg = twin_config.default_config()
-    keys = ("stl_path", "stl_units") + twin_config.JAR_KEYS
+    from effects import jar_config
+    keys = ("stl_path", "stl_units", "effects") + twin_config.JAR_KEYS
     defaulted = [k for k in ("stl_path", "stl_units") if k not in given]
     cfg.update({k: given[k] for k in keys if k in given})
     path = twin_config.resolve_stl(cfg, str(REPO_ROOT))
     try:
-        tri, info, scale = mesh_for_config(cfg, path)
+        tri, info, scale = mesh_for_config(jar_config(cfg), path)
     except ValueError as exc:
         raise ExportError(f"parametric jar of the run: {exc}")
     if info.pop("source") == "parametric":

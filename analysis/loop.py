@@ -63,7 +63,8 @@ from analysis.diagnose import BaseParameter, calibrate_base, diagnose
 from analysis.measurements import DatasetError, load_dataset
 from analysis.open_model import BudgetError, OpenTwinModel, run_wall_s
 from analysis.sweep import parse_key_value
-from analysis.twin_model import (candidates, dataset_observations, reference_parameters,
+from analysis.twin_model import (CANDIDATES, candidates, dataset_observations,
+                                 reference_parameters,
                                  with_run_sd, yield_times_of)
 
 #: candidate effects beyond this many are not added (a guard against chasing noise)
@@ -491,7 +492,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
              max_reanchor=MAX_REANCHOR, max_polish=MAX_POLISH, budget_runs=None, base_config=None, runner=None,
              workers=2, backend="local", runs_dir=None, progress=True, scheduler=None,
              slurm=None, log=print, flights=True, track_cache=None,
-             null_draws=20) -> LoopResult:
+             null_draws=20, extra_effects=()) -> LoopResult:
     """Run the loop on a loaded :class:`analysis.measurements.Dataset` (see the module doc).
 
     Parameters
@@ -515,6 +516,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         results/track_cache)
     null_draws : datasets drawn from the fitted model per step whose diagnosis calibrates the
         significance threshold (:func:`null_scale`; 0: the nominal Bonferroni level only)
+    extra_effects : optional catalog entries diagnosed beside the default catalog
+        (twin_model.OPTIONAL_CANDIDATES, e.g. 'end_fillet'; :func:`optional_effects`)
     """
     from analysis.open_model import DEFAULT_BASE
     t_start = time.time()
@@ -535,6 +538,10 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
     obs0, fl_ids, _ = dataset_observations(dataset, flights)
     theta_ref = dict(theta_ref or reference_parameters())
+    effect_names = None
+    if extra_effects:
+        effect_names = ([c.name for c in CANDIDATES if c.kind == "dem"]
+                        + optional_effects(extra_effects, base_config))
     used = {"new": 0}
 
     def budget_left():
@@ -545,7 +552,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                           base=tuple(base or DEFAULT_BASE),
                           velocity_frame=dataset.velocity_frame, flight_conditions=fl_ids,
                           replicates=replicates, diff_replicates=diff_replicates,
-                          base_config=base_config, budget_runs=budget_left(), **sweep_kw)
+                          base_config=base_config, budget_runs=budget_left(),
+                          effect_names=effect_names, **sweep_kw)
         ps = m.plan_summary(stage)
         log("model at %s (%s): %d runs, %d cached, %d new, about %.0f min on %d worker(s)"
             % (_fmt_theta(ref), "anchor + base responses" if stage == "base" else
@@ -752,6 +760,34 @@ def run_settings(pairs, *, frame="lab", record_s=None):
     except twin_config.ConfigError as exc:
         raise ValueError("--set: %s" % exc)
     return out or None
+
+
+def optional_effects(names, base_config=None):
+    """The optional catalog entries ``names`` (twin_model.OPTIONAL_CANDIDATES), checked against
+    the runs' jar: each must be able to act on it at its largest strength.
+
+    Raises
+    ------
+    ValueError - an unknown name, or an effect that cannot act on this jar (e.g. end_fillet on
+        an STL whose fillet is unknown)
+    """
+    from analysis.config import twin_config
+    from analysis.twin_model import OPTIONAL_CANDIDATES
+    from effects import jar_config
+    opt = {c.name: c for c in OPTIONAL_CANDIDATES}
+    out = []
+    for n in names:
+        if n not in opt:
+            raise ValueError("--with-effect %s: not an optional catalog entry (optional: %s; "
+                             "the others are always diagnosed)" % (n, ", ".join(opt)))
+        cfg = dict(base_config or {}, effects=opt[n].spec(opt[n].s_max))
+        try:
+            jar_config(twin_config.complete_config(cfg))
+        except twin_config.ConfigError as exc:
+            raise ValueError("--with-effect %s: %s" % (n, exc))
+        if n not in out:
+            out.append(n)
+    return out
 
 
 def with_assumed_v_sd(dataset, v_rel_sd):
@@ -1012,6 +1048,10 @@ def main(argv=None):
                     "runs: another frame is another run id)")
     ap.add_argument("--record-s", type=float, default=None,
                     help="recorded time per twin run [s] (default the run config's 0.5 s)")
+    ap.add_argument("--with-effect", action="append", default=[], metavar="NAME",
+                    help="an optional catalog entry diagnosed beside the default ones "
+                    "(repeatable): end_fillet (the jar's end edges rounded more; needs the "
+                    "default or a parametric jar)")
     ap.add_argument("--v-rel-sd", type=float, default=None, metavar="F",
                     help="measurement sd of v_mean assumed where the dataset states none, as a "
                     "fraction of v_mean (default 0.015; e.g. 0.01 for 1 %%)")
@@ -1048,11 +1088,14 @@ def main(argv=None):
             from analysis.fake_twin import run_fake_twin
             runner, runs_dir = run_fake_twin, FAKE_RUNS_DIR
         base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
+        extra = optional_effects(a.with_effect, base_config)
         if a.dry_run:
             m = OpenTwinModel(ds.conditions, yield_times_of(ds),
                               velocity_frame=ds.velocity_frame, replicates=a.replicates,
                               diff_replicates=a.diff_replicates, base_config=base_config,
-                              workers=a.workers, runs_dir=runs_dir)
+                              workers=a.workers, runs_dir=runs_dir,
+                              effect_names=([c.name for c in CANDIDATES if c.kind == "dem"]
+                                            + extra) if extra else None)
             for stage in ("base", "all"):
                 ps = m.plan_summary(stage)
                 print("%s: %d runs, %d cached, %d new, about %.0f min on %d worker(s) "
@@ -1074,7 +1117,7 @@ def main(argv=None):
                        alpha=a.alpha, max_effects=a.max_effects, budget_runs=a.budget_runs,
                        base_config=base_config, runner=runner, workers=a.workers,
                        backend=a.backend, scheduler=a.scheduler, runs_dir=runs_dir,
-                       log=lambda s: print(s, file=sys.stderr))
+                       log=lambda s: print(s, file=sys.stderr), extra_effects=extra)
         write_loop(res, a.out, ds, protected=[a.dataset])
     except BudgetError as exc:
         print("analysis.loop: %s" % exc, file=sys.stderr)

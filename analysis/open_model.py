@@ -48,6 +48,7 @@ import pandas as pd
 
 from analysis.conditions import physics_table
 from analysis.twin_model import (CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS,
+                                 OPTIONAL_CANDIDATES,
                                  V_REL_SD_FLOOR, TwinModel, candidates, curvatures, interp_levels,
                                  interp_sd, reference_parameters)
 
@@ -206,7 +207,8 @@ class OpenTwinModel(TwinModel):
         self.replicates = int(replicates)
         self.diff_replicates = min(int(diff_replicates), int(replicates))
         dem = candidates("dem")
-        names = list(effect_names) if effect_names is not None else list(dem)
+        names = (list(effect_names) if effect_names is not None
+                 else [c.name for c in CANDIDATES if c.kind == "dem"])
         bad = [n for n in names if n not in dem]
         if bad:
             raise ValueError("unknown DEM candidate(s) %s" % bad)
@@ -678,7 +680,7 @@ class OpenTwinModel(TwinModel):
         """diagnose Effects: the built DEM candidates, and the kinetics ones with yields."""
         from analysis.diagnose import Effect
         out = []
-        for c in CANDIDATES:
+        for c in CANDIDATES + OPTIONAL_CANDIDATES:
             if c.kind == "kinetics" and not self.has_yields:
                 continue
             if c.kind == "dem" and c.name not in self.sig_all_:

@@ -116,6 +116,8 @@ def check_ball_fits_jar(cfg):
     """
     from geometry.stl_io import MeshError, ball_fit_error
 
+    from effects import jar_config
+    cfg = jar_config(cfg)          # effects that change the jar (ConfigError when they cannot)
     if twin_config.parametric_jar(cfg) is not None:
         info = _parametric_jar_info(tuple(sorted(twin_config.parametric_jar(cfg).items())))
         problem = ball_fit_error(cfg["ball_diameter_m"], info)

@@ -168,11 +168,18 @@ CANDIDATES = (
     Candidate("temperature_rise", "kinetics", "thermal_resistance_k_w", 1.0, "K/W"),
 )
 DECOYS = ("air_drag",)
+#: catalog entries diagnosed only when asked for (``python -m analysis.loop --with-effect``):
+#: the apparatus effects (docs/apparatus.md), whose responses the committed runs do not hold
+OPTIONAL_CANDIDATES = (
+    Candidate("end_fillet", "dem", "extra_fillet_m", 0.006, "m"),
+)
 
 
 def candidates(kind=None):
-    """The candidates of one kind ('dem', 'kinetics') or all, by name."""
-    return {c.name: c for c in CANDIDATES if kind is None or c.kind == kind}
+    """The candidates of one kind ('dem', 'kinetics') or all, by name (the optional ones
+    included: this is the lookup; the default catalog is :data:`CANDIDATES`)."""
+    return {c.name: c for c in CANDIDATES + OPTIONAL_CANDIDATES
+            if kind is None or c.kind == kind}
 
 
 def reference_parameters(calibration_dir=CALIBRATION_DIR):

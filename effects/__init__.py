@@ -83,6 +83,28 @@ def load_effects(spec, side=None):
     return out
 
 
+def jar_config(cfg):
+    """``cfg`` (a complete run config) with the jar keys the switched-on effects change.
+
+    An effect module may define ``jar_overrides(cfg, params) -> {jar key: value}`` (e.g.
+    end_fillet): the jar is then built from the returned keys by every reader of the jar (the
+    scene, the runner's fit check, the exporter). Without such effects ``cfg`` is returned.
+
+    Raises
+    ------
+    ConfigError - an effect that cannot change this jar, or an impossible result
+    """
+    out = cfg
+    for name in sorted(cfg.get("effects") or {}):
+        mod = importlib.import_module("effects." + name)
+        hook = getattr(mod, "jar_overrides", None)
+        if hook is None:
+            continue
+        params = validate(name, cfg["effects"][name])
+        out = dict(out, **hook(out, params))
+    return out
+
+
 def catalog_rows(kind=None):
     """One dict per effect (name, kind, physics, parameters, null, changes), sorted by name.
 

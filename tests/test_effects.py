@@ -22,10 +22,11 @@ def mod(name):
 
 
 # ---------------------------------------------------------------- declarations and validation
-def test_catalog_holds_the_ten_effects():
+def test_catalog_holds_the_eleven_effects():
     assert set(NAMES) == {"viscoelastic_restitution", "arc_motion", "jar_compliance",
                           "powder_layer", "rolling_resistance", "air_drag", "impact_threshold",
-                          "first_order_depletion", "induction_period", "temperature_rise"}
+                          "first_order_depletion", "induction_period", "temperature_rise",
+                          "end_fillet"}
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -497,3 +498,44 @@ def test_thornton_betan_is_what_yade_sets_for_en(tmp_path):
     assert line, proc.stdout + proc.stderr
     for en, beta in json.loads(line[0][6:]).items():
         assert base.thornton_betan(float(en)) == pytest.approx(beta, rel=1e-12)
+
+
+# ---------------------------------------------------------------- end_fillet (a jar effect)
+def test_end_fillet_builds_the_default_jar_with_a_larger_fillet(tmp_path):
+    cfg = twin_config.complete_config({"effects": {"end_fillet": {"extra_fillet_m": 0.003}}})
+    jar = effects.jar_config(cfg)
+    assert jar["jar_inner_diameter_m"] == 0.028 and jar["jar_fillet_radius_m"] == 0.008
+    assert jar["jar_volume_m3"] == 25e-6 and jar["jar_inner_length_m"] is None
+    # a parametric jar keeps its own dimensions
+    par = twin_config.complete_config({"jar_inner_diameter_m": 0.030,
+                                       "jar_fillet_radius_m": 0.004,
+                                       "effects": {"end_fillet": {"extra_fillet_m": 0.002}}})
+    assert effects.jar_config(par)["jar_fillet_radius_m"] == pytest.approx(0.006)
+    assert effects.jar_config(twin_config.complete_config({})) == twin_config.complete_config({})
+    # a jar whose fillet is unknown, or a fillet beyond D/2 - 1 mm: one clear error, no run
+    from analysis.twin import run_twin
+    from geometry.jar import make_jar
+    from geometry.stl_io import write_stl
+    stl = tmp_path / "mine.stl"
+    write_stl(str(stl), make_jar(n_circ=16)[0] * 1e3)
+    for bad, msg in [({"stl_path": str(stl)}, "no known fillet"),
+                     ({"jar_inner_diameter_m": 0.024, "jar_fillet_radius_m": 0.008},
+                      "exceeds D/2")]:
+        c = dict(bad, effects={"end_fillet": {"extra_fillet_m": 0.004}})
+        with pytest.raises(twin_config.ConfigError, match=msg):
+            run_twin(c, runs_dir=tmp_path / "runs")
+        assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+@pytest.mark.yade
+def test_end_fillet_run_is_the_parametric_jar_with_that_fillet(tmp_path):
+    """The effect on the default jar and the parametric jar with the enlarged fillet are the
+    same scene: the same trajectory to the last digit."""
+    base = dict(STILL, ball_init_vel_m_s=[1.5, 0.3, -0.2], record_s=0.03, frame="jar")
+    a = twin_run(dict(base, effects={"end_fillet": {"extra_fillet_m": 0.004}}), tmp_path)
+    b = twin_run(dict(base, jar_inner_diameter_m=0.028, jar_fillet_radius_m=0.009), tmp_path)
+    assert a.meta["jar"]["stl_path"] == "parametric" == b.meta["jar"]["stl_path"]
+    assert a.meta["jar"]["n_facets"] == b.meta["jar"]["n_facets"]
+    cols = ["x_m", "y_m", "z_m", "vx_m_s"]
+    assert np.array_equal(a.trajectory[cols].to_numpy(), b.trajectory[cols].to_numpy())
+    assert len(a.impacts) > 0

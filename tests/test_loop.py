@@ -609,3 +609,27 @@ def test_assumed_v_sd_fills_only_empty_cells_and_bad_values_are_exit_2(fake_data
     assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--fake",
                       "--v-rel-sd", "-1"]) == 2
     assert "v-rel-sd" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_optional_apparatus_effect_joins_the_catalog_only_when_asked(fake_dataset, tmp_path,
+                                                                     capsys):
+    from analysis.measurements import load_dataset
+    from analysis.open_model import OpenTwinModel
+    assert loop.optional_effects(["end_fillet"]) == ["end_fillet"]
+    with pytest.raises(ValueError, match="not an optional"):
+        loop.optional_effects(["arc_motion"])
+    with pytest.raises(ValueError, match="no known fillet"):
+        loop.optional_effects(["end_fillet"], {"stl_path": "my_jar.stl"})
+    ds = load_dataset(fake_dataset)
+    default = OpenTwinModel(ds.conditions, {}, velocity_frame=ds.velocity_frame)
+    assert "end_fillet" not in default.effect_names
+    plan = OpenTwinModel(ds.conditions, {}, velocity_frame=ds.velocity_frame,
+                         effect_names=list(default.effect_names) + ["end_fillet"]).plan("all")
+    fil = plan[plan["name"] == "end_fillet"]
+    assert len(fil) > 0
+    assert all(c["effects"]["end_fillet"]["extra_fillet_m"] > 0 for c in fil["config"])
+    assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"),
+                      "--dry-run", "--with-effect", "end_fillet"]) == 0
+    assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"),
+                      "--with-effect", "bogus"]) == 2
+    assert "bogus" in capsys.readouterr().err

@@ -59,7 +59,7 @@ from twin_config import ConfigError  # noqa: E402
 from twin_modes import classify_motion  # noqa: E402
 from geometry.stl_io import MeshError, ball_fit_error  # noqa: E402
 from geometry.jar import mesh_for_config  # noqa: E402
-from effects import load_effects  # noqa: E402
+from effects import jar_config, load_effects  # noqa: E402
 
 from yade import O, utils  # noqa: E402
 from yade.wrapper import (FrictMat, ForceResetter, InsertionSortCollider, Bo1_Sphere_Aabb,  # noqa: E402
@@ -117,7 +117,9 @@ def load_jar(cfg):
     """Read and check the jar STL; return triangles [m] and its dimensions."""
     path = twin_config.resolve_stl(cfg, ROOT)
     try:
-        tri, info, scale = mesh_for_config(cfg, path)
+        tri, info, scale = mesh_for_config(jar_config(cfg), path)
+    except ConfigError:
+        raise
     except ValueError as exc:   # impossible parametric dimensions
         raise ConfigError("parametric jar: %s" % exc)
     if info.pop("source") == "parametric":
