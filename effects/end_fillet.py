@@ -4,7 +4,7 @@ A ball lying on the cylinder's bottom sits (D - d)/2 off the axis and meets the 
 rounded edge when the fillet radius r_f is large enough: the impact normal tilts away from the
 axis, the ball arrives obliquely (tangential approach 0.7-1.3 m/s at r_f = 10 mm against
 0.05-0.1 m/s at 5 mm in the paper's conditions) and the end impacts throw the two ball sizes
-differently (results/apparatus/screen.md: r_f 10 mm makes the 17.5 mm ball 4 % faster than the
+differently (results/apparatus/README.md: r_f 10 mm makes the 17.5 mm ball 4 % faster than the
 20.6 mm one and its v/f fall 3 % from 22.5 to 30 Hz). Strength: the extra fillet radius
 ``extra_fillet_m`` added to the jar's own; 0 is the base jar.
 
@@ -25,7 +25,7 @@ DECLARATION = {
                            "description": "added to the jar's fillet radius"},
     },
     "null": {"extra_fillet_m": 0.0},
-    "references": ["results/apparatus/screen.md (this project's screen of the jar shape)"],
+    "references": ["results/apparatus/README.md (this project's screen of the jar shape)"],
     "changes": "the jar mesh: a parametric jar with the fillet radius increased (the default STL "
                "is replaced by its parametric equivalent); no engine",
 }

@@ -6,7 +6,8 @@ fillet 5 mm, 25 mL, A 13.5 mm, straight stroke) and contact law (YADE's rolling 
 restitution compensated for the time step). Per variant: the mean v/f of each ball, the size
 split (17.5 mm over 20.6 mm), and the change of v/f from 22.5 to 30 Hz - beside the same figures
 of the paper's own EDEM column. The runs are the jar frame's except for the arc (lab frame);
-cached by run id. Writes ``results/apparatus/screen.csv`` and ``screen.md``.
+cached by run id. Writes ``results/apparatus/screen.csv`` and ``README.md`` (the screen, and
+links to the identification and calibration pages of ``make apparatus`` where they exist).
 
     python -m analysis.studies.apparatus_screen [--workers 2] [--seeds 2]
 """
@@ -99,7 +100,7 @@ def summarize(keys: pd.DataFrame, runs: pd.DataFrame, cond: pd.DataFrame) -> pd.
 def write(summary: pd.DataFrame, seeds: int, out=OUT):
     out.mkdir(parents=True, exist_ok=True)
     summary.to_csv(out / "screen.csv", index=False, float_format="%.4g")
-    lines = ["# Apparatus and contact-law screen at the paper's contact parameters", "",
+    lines = ["# The apparatus: screen at the paper's contact parameters", "",
              "C_R 0.11, SF 0.7, RF 0.5; the 8 conditions of Table 3, %d start positions each; "
              "one change from the default twin per row. v/f in mm (mean over the conditions "
              "of each ball); split = 17.5 mm ball over 20.6 mm ball; trend = v/f at 30 Hz "
@@ -113,7 +114,14 @@ def write(summary: pd.DataFrame, seeds: int, out=OUT):
                      % (r.variant, r.vf_17_5_mm, r.vf_20_6_mm, r.split_pct, r.trend_17_5_pct,
                         r.trend_20_6_pct, r.mean_abs_diff_dem_pct,
                         "-" if np.isnan(r.runs) else "%d (%d)" % (r.runs, r.not_end_to_end)))
-    (out / "screen.md").write_text("\n".join(lines) + "\n")
+    lines += ["", "Next steps of `make apparatus` (docs/apparatus.md): the apparatus identified "
+              "from the paper's DEM column at its contact parameters, then contact and "
+              "apparatus calibrated on the measurements."]
+    for sub, what in (("identify_paper_dem", "identified from the paper's DEM column"),
+                      ("calibrate_measured", "calibrated on Table 3's measurements")):
+        if (out / sub / "README.md").exists():
+            lines.append("- [%s](%s/README.md): %s" % (sub, sub, what))
+    (out / "README.md").write_text("\n".join(lines) + "\n")
 
 
 def main(argv=None):
