@@ -464,6 +464,18 @@ def test_twin_corrected_refits_remove_the_models_interaction_bias():
     assert len(tc["rerun"]["runs"]) == len(calls)
 
 
+def _off_anchor_twin(m):
+    """A 'twin' that differs from the toy model away from its anchor (a = 2) in a way that
+    looks like E1: a curvature in frequency growing with a."""
+    x2 = ((m.f - 26) / 6) ** 2
+
+    def twin(theta, eff):
+        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
+        y[:, 0] += 1.0 * x2 * (theta["a"] - 2.0)
+        return pd.Series(y.ravel(), index=m.keys)
+    return twin
+
+
 def test_diagnosis_on_the_twin_corrected_model_drops_a_false_alarm():
     """No effect hidden, but the 'twin' differs from the model away from its anchor in a way
     that looks like E1 (a curvature in frequency growing with a): the model alone names E1;
@@ -471,12 +483,7 @@ def test_diagnosis_on_the_twin_corrected_model_drops_a_false_alarm():
     loop does before it diagnoses) names nothing, and its calibrated a is the truth."""
     from analysis.diagnose import calibrate_base
     m = ToyModel(se=0.002)
-    x2 = ((m.f - 26) / 6) ** 2
-
-    def twin(theta, eff):
-        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
-        y[:, 0] += 1.0 * x2 * (theta["a"] - 2.0)
-        return pd.Series(y.ravel(), index=m.keys)
+    twin = _off_anchor_twin(m)
 
     rng = np.random.default_rng(5)
     mu = twin({"a": 2.2, "b": 0.4}, {}).to_numpy()
@@ -561,12 +568,7 @@ def test_twin_confirms_a_real_effect_and_not_the_models_false_alarm(hidden, conf
     for only where the twin holds it (E1 = 0.3 hidden)."""
     from analysis.diagnose import calibrate_base
     m = ToyModel(se=0.002)
-    x2 = ((m.f - 26) / 6) ** 2
-
-    def twin(theta, eff):
-        y = m.predict(theta, eff).to_numpy().reshape(-1, 2).copy()
-        y[:, 0] += 1.0 * x2 * (theta["a"] - 2.0)
-        return pd.Series(y.ravel(), index=m.keys)
+    twin = _off_anchor_twin(m)
 
     def rerun(th, eff):
         return twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()
