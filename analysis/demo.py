@@ -1,8 +1,9 @@
 """The main job: the twin at the paper's 8 measured conditions, beside Table 3.
 
-Runs the YADE twin (paper contact parameters C_R = 0.11, SF = 0.7, RF = 0.5; default jar and
-amplitude) at the 8 conditions of data/measurements/paper_table3 with ``--replicates`` start
-positions each, passes every recording through the observation operator (camera at 2134 fps, lab
+Runs the YADE twin (paper contact parameters C_R = 0.11, SF = 0.7, RF = 0.5; in the apparatus
+identified from the paper's DEM column when results/apparatus/paper_apparatus.json exists, else
+the default jar and amplitude) at the 8 conditions of data/measurements/paper_table3 with
+``--replicates`` start positions each, passes every recording through the observation operator (camera at 2134 fps, lab
 frame) and writes results/demo/:
 
 - ``comparison.csv``: per condition the measured v_mean and f_col (Table 3), the twin's mean and
@@ -17,7 +18,9 @@ Then it prints the contract lines (4-seed means)::
     paper parameters vs paper DEM: mean |v diff| X %, max Y %
     calibrated twin vs measured: mean |v error| X %, max Y %
 
-and runs the loop on Table 3 (:mod:`analysis.loop`) into results/demo/loop/.
+(the calibrated line: the twin at results/apparatus/measured_apparatus.json's parameters,
+``--replicates`` seeds, when that profile exists; else the signature library's committed
+anchor runs) and runs the loop on Table 3 (:mod:`analysis.loop`) into results/demo/loop/.
 
     python -m analysis.demo [--replicates 4] [--workers 2] [--record-s 0.5] [--no-loop]
 """
