@@ -137,10 +137,10 @@ def jar_mesh(meta: dict) -> tuple[np.ndarray, dict, list]:
         the STL is missing, unreadable or not a closed, inward-oriented jar.
     """
     from analysis.config import REPO_ROOT, twin_config
+    from effects import jar_config
     from geometry.jar import mesh_for_config
     given = meta.get("config") or {}
     cfg = twin_config.default_config()
-    from effects import jar_config
     keys = ("stl_path", "stl_units", "effects") + twin_config.JAR_KEYS
     defaulted = [k for k in ("stl_path", "stl_units") if k not in given]
     cfg.update({k: given[k] for k in keys if k in given})
