@@ -18,6 +18,8 @@ FAKE_RUNS_DIR = RESULTS_DIR / "runs_fake"
 #: tracks of datasets' films, cached by the film's content hash (analysis.videos)
 TRACK_CACHE_DIR = RESULTS_DIR / "track_cache"
 DEMO_DIR = RESULTS_DIR / "demo"
+#: the hidden-effect demonstration (analysis.hidden_demo)
+HIDDEN_DEMO_DIR = RESULTS_DIR / "hidden_demo"
 #: the twin of the paper's mill (docs/apparatus.md): run-config fragments written by
 #: analysis.studies.apparatus_identification - the apparatus identified from the paper's EDEM
 #: column at its contact parameters, and the contact + apparatus calibrated on Table 3
@@ -28,8 +30,6 @@ CALIBRATION_DIR = RESULTS_DIR / "calibration"
 KINETICS_DIR = RESULTS_DIR / "kinetics"
 SURROGATE_DIR = RESULTS_DIR / "surrogate"
 OBSERVE_DIR = RESULTS_DIR / "observe"
-#: the steering repo's shared folder sits beside the checkout (read-only reference figures)
-SHARED_REFERENCE_DIR = REPO_ROOT.parent / "shared" / "reference"
 
 # the run-config declaration is shared with the YADE scene (stdlib only)
 if str(YADE_SCRIPTS_DIR) not in sys.path:

@@ -28,10 +28,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.config import RESULTS_DIR
+from analysis.config import HIDDEN_DEMO_DIR
 from analysis import twin_model
 
-DEMO_DIR = RESULTS_DIR / "hidden_demo"
 
 
 def secret_choice(secret_seed):
@@ -159,7 +158,7 @@ def rerun_chi2(observations, pred, n_fitted):
     return float(np.sum(z ** 2)), int(len(z) - n_fitted)
 
 
-def run_demo(out_dir=DEMO_DIR, secret_seed=2026, effect_spec=None, say=print, **kw):
+def run_demo(out_dir=HIDDEN_DEMO_DIR, secret_seed=2026, effect_spec=None, say=print, **kw):
     """The whole loop; returns a dict of its figures (also written to summary.json).
 
     Everything is written to a staging folder beside ``out_dir`` and moved onto it at the end, so
@@ -353,7 +352,7 @@ def main(argv=None):
     ap.add_argument("--noise-seed", type=int, default=11)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-verify", action="store_true", help="skip the twin rerun")
-    ap.add_argument("--out", default=str(DEMO_DIR))
+    ap.add_argument("--out", default=str(HIDDEN_DEMO_DIR))
     a = ap.parse_args(argv)
     try:
         spec = dict([parse_effect(a.effect)]) if a.effect else None
