@@ -56,6 +56,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from effects import diagnose_entries
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
 
 SIGNATURE_DIR = RESULTS_DIR / "signatures"
@@ -83,7 +84,8 @@ FLIGHT_SD_FLOORS = {"e_app": 0.003, "v_in_m_s": 0.005, "impact_phase_rad": 0.01,
 
 @dataclass(frozen=True)
 class Candidate:
-    """One catalog effect as a diagnose candidate.
+    """One catalog effect as a diagnose candidate, declared by the effect's own file (the
+    "diagnose" entry of its DECLARATION, :meth:`from_declaration`).
 
     name : effect module name
     kind : 'dem' or 'kinetics'
@@ -145,34 +147,40 @@ class Candidate:
             return "(%g %s / %s)^2" % (self.p0, self.unit, self.param)
         return "(%s / %g %s)^2" % (self.param, self.p0, self.unit)
 
+    @classmethod
+    def from_declaration(cls, name, kind, entry):
+        """The candidate an effect declares: its DECLARATION's "diagnose" entry (the fields
+        above; "order", "optional" and "decoy" are the catalog's, not the candidate's)."""
+        fixed = entry.get("fixed") or {}
+        levels = entry.get("levels")
+        replicates = entry.get("replicates")
+        return cls(name, kind, entry["param"], float(entry["s_max"]), entry["unit"],
+                   coord=entry.get("coord", "linear"), p0=float(entry.get("p0", 1.0)),
+                   fixed=tuple(dict(fixed).items()),
+                   levels=None if levels is None else tuple(float(x) for x in levels),
+                   replicates=None if replicates is None else int(replicates))
 
-# The diagnose ranges: physically plausible, and wide enough that the top moves v_mean by a few
-# per cent (signature strengths; the pilot figures are in results/signatures/README.md).
-CANDIDATES = (
-    Candidate("viscoelastic_restitution", "dem", "k", 0.6, "-"),
-    Candidate("arc_motion", "dem", "curvature_1_m", 15.0, "1/m"),
-    # the 20.6 mm ball's flight is bistable under compliance: a start either locks into the
-    # 'normal' impacts or a 'late' pattern (approach 4.4 vs 1.3 m/s at 30 Hz, the same strength),
-    # from (100 Hz / f_n)^2 ~ 0.5 up, and the late pattern's impact observables change fast with
-    # the strength: levels every s_max / 8 from s_max / 4, 4 seeds each so that both patterns
-    # are sampled
-    Candidate("jar_compliance", "dem", "f_n_hz", 1.5, "Hz", coord="inv_square", p0=100.0,
-              levels=(0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0), replicates=4),
-    Candidate("powder_layer", "dem", "layer_thickness_m", 1.0, "m", coord="square",
-              p0=5e-4),
-    Candidate("rolling_resistance", "dem", "extra_rolling_friction", 2.0, "-"),
-    Candidate("air_drag", "dem", "drag_scale", 1.0, "-"),
-    Candidate("impact_threshold", "kinetics", "threshold_energy_j", 0.04, "J"),
-    Candidate("first_order_depletion", "kinetics", "depletion", 1.0, "-"),
-    Candidate("induction_period", "kinetics", "induction_energy_j", 1500.0, "J"),
-    Candidate("temperature_rise", "kinetics", "thermal_resistance_k_w", 1.0, "K/W"),
-)
-DECOYS = ("air_drag",)
-#: catalog entries diagnosed only when asked for (``python -m analysis.loop --with-effect``):
-#: the apparatus effects (docs/apparatus.md), whose responses the committed runs do not hold
-OPTIONAL_CANDIDATES = (
-    Candidate("end_fillet", "dem", "extra_fillet_m", 0.006, "m"),
-)
+
+def _declared_candidates(optional):
+    """The candidates the effect files declare (effects.diagnose_entries, in their "order"),
+    the optional ones or the default catalog."""
+    return tuple(Candidate.from_declaration(name, kind, entry)
+                 for name, kind, entry in diagnose_entries()
+                 if bool(entry.get("optional", False)) == optional)
+
+
+# The diagnose catalog is declared by the effects themselves (each effect file's DECLARATION
+# "diagnose" entry, ordered by its "order"). The diagnose ranges: physically plausible, and wide
+# enough that the top moves v_mean by a few per cent (signature strengths; the pilot figures are
+# in results/signatures/README.md).
+CANDIDATES = _declared_candidates(optional=False)
+#: effects whose footprint is below the twin's chaos (their entry's "decoy"): never to be named
+DECOYS = tuple(name for name, _, entry in diagnose_entries()
+               if entry.get("decoy", False))
+#: catalog entries diagnosed only when asked for (``python -m analysis.loop --with-effect``;
+#: their entry's "optional"): the apparatus effects (docs/apparatus.md), whose responses the
+#: committed runs do not hold
+OPTIONAL_CANDIDATES = _declared_candidates(optional=True)
 
 
 def candidates(kind=None):

@@ -2,7 +2,8 @@
 
 ``load_effects({"name": {"param": value}}, side="dem")`` validates names and parameters against
 each module's ``DECLARATION`` and returns the effect objects of one side ('dem' for the YADE
-scene, 'kinetics' for the yield model, None for all). Standard library only.
+scene, 'kinetics' for the yield model, None for all). ``diagnose_entries()`` lists the effects'
+diagnose entries (the candidates of analysis.twin_model). Standard library only.
 """
 import importlib
 import math
@@ -29,6 +30,46 @@ def declaration(name):
     if name not in available():
         raise ConfigError("unknown effect %r (catalog: %s)" % (name, ", ".join(available())))
     return importlib.import_module("effects." + name).DECLARATION
+
+
+#: keys of a declaration's optional "diagnose" entry: analysis.twin_model.Candidate's fields
+#: (param, s_max, unit; coord, p0, levels, replicates, fixed optional) and the entry's place in
+#: the catalog ("order", "optional", "decoy")
+DIAGNOSE_KEYS = {"order", "param", "s_max", "unit", "coord", "p0", "levels", "replicates",
+                 "fixed", "optional", "decoy"}
+
+
+def diagnose_entries():
+    """(name, kind, diagnose entry) of every effect whose DECLARATION has a "diagnose" entry,
+    ordered by the entries' "order" (which fixes the diagnose catalog's order: run ids, plots).
+
+    Raises
+    ------
+    ConfigError - an entry that is not a dict, has unknown keys or no integer "order", or an
+        "order" that two effects share
+    """
+    rows, seen = [], {}
+    for name in available():
+        d = declaration(name)
+        entry = d.get("diagnose")
+        if entry is None:
+            continue
+        if not isinstance(entry, dict):
+            raise ConfigError("effect %s: \"diagnose\" must be a dict, got %r" % (name, entry))
+        unknown = sorted(set(entry) - DIAGNOSE_KEYS)
+        if unknown:
+            raise ConfigError("effect %s: unknown diagnose key(s) %s (known: %s)"
+                              % (name, ", ".join(unknown), ", ".join(sorted(DIAGNOSE_KEYS))))
+        order = entry.get("order")
+        if not isinstance(order, int) or isinstance(order, bool):
+            raise ConfigError("effect %s: diagnose needs an integer \"order\", got %r"
+                              % (name, order))
+        if order in seen:
+            raise ConfigError("effects %s and %s: the same diagnose order %d"
+                              % (seen[order], name, order))
+        seen[order] = name
+        rows.append((order, name, d["kind"], entry))
+    return [(name, kind, entry) for _, name, kind, entry in sorted(rows)]
 
 
 def validate(name, params):

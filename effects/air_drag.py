@@ -27,6 +27,9 @@ DECLARATION = {
                              "description": "sphere drag coefficient C_d (0.47 at Re ~ 1e3-1e5)"},
     },
     "null": {"drag_scale": 0.0},
+    # a decoy: its footprint is below the twin's chaos, diagnose must never name it
+    "diagnose": {"order": 60, "param": "drag_scale", "s_max": 1.0, "unit": "-",
+                 "decoy": True},
     "references": ["Schlichting H, Boundary-Layer Theory (sphere drag curve, C_d ~ 0.47)"],
     "changes": "a permanent force on the ball, updated at every output frame",
 }

@@ -44,6 +44,7 @@ DECLARATION = {
                                 "no other value"},
     },
     "null": {"curvature_1_m": 0.0},
+    "diagnose": {"order": 20, "param": "curvature_1_m", "s_max": 15.0, "unit": "1/m"},
     "references": ["Retsch MM400 manual (grinding jars on swing arms, radial oscillation)"],
     "changes": "tilt 1: adds a HarmonicRotationEngine on the jar facets about the arm's pivot "
                "after the scene's HarmonicMotionEngine (which it overrides); tilt 0: combines "

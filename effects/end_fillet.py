@@ -25,6 +25,10 @@ DECLARATION = {
                            "description": "added to the jar's fillet radius"},
     },
     "null": {"extra_fillet_m": 0.0},
+    # an apparatus effect (docs/apparatus.md): diagnosed only when asked for
+    # (python -m analysis.loop --with-effect end_fillet)
+    "diagnose": {"order": 110, "param": "extra_fillet_m", "s_max": 0.006, "unit": "m",
+                 "optional": True},
     "references": ["results/apparatus/README.md (this project's screen of the jar shape)"],
     "changes": "the jar mesh: a parametric jar with the fillet radius increased (the default STL "
                "is replaced by its parametric equivalent); no engine",

@@ -22,6 +22,7 @@ DECLARATION = {
                       "description": "s: 1 = first order in the remaining PET, 0 = linear"},
     },
     "null": {"depletion": 0.0},
+    "diagnose": {"order": 80, "param": "depletion", "s_max": 1.0, "unit": "-"},
     "references": [
         "Anglou et al. (2024) ACS Sustain Chem Eng 12, 9003 (linear powder-regime line)",
         "Tan D, Friscic T (2018) Eur J Org Chem 2018, 18 (mechanochemical kinetics review)",

@@ -23,6 +23,8 @@ DECLARATION = {
                                "description": "impact energy E* below which nothing reacts"},
     },
     "null": {"threshold_energy_j": 0.0},
+    "diagnose": {"order": 70, "param": "threshold_energy_j", "s_max": 0.04,
+                 "unit": "J"},
     "references": [
         "Anglou et al. (2024) ACS Sustain Chem Eng 12, 9003 (E_tot = E_kin f_col t)",
         "Delogu F, Takacs L (2018) J Mater Sci 53, 13331 (kinetics of mechanochemical "

@@ -22,6 +22,8 @@ DECLARATION = {
                                               "starts"},
     },
     "null": {"induction_energy_j": 0.0},
+    "diagnose": {"order": 90, "param": "induction_energy_j", "s_max": 1500.0,
+                 "unit": "J"},
     "references": [
         "Anglou et al. (2024) ACS Sustain Chem Eng 12, 9003",
         "Boldyreva E (2013) Chem Soc Rev 42, 7719 (induction periods in mechanochemistry)",

@@ -32,6 +32,8 @@ DECLARATION = {
                               "description": "pressure p_c needed to compact the powder"},
     },
     "null": {"layer_thickness_m": 0.0},
+    "diagnose": {"order": 40, "param": "layer_thickness_m", "s_max": 1.0, "unit": "m",
+                 "coord": "square", "p0": 5e-4},
     "references": [
         "Anglou et al. (2024) ACS Sustain Chem Eng 12, 9003 (PET powder in the jar)",
         "Thornton C, Ning Z (1998) Powder Technol 99, 154 (plastic energy loss per impact)",

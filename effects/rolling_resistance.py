@@ -26,6 +26,8 @@ DECLARATION = {
                                                   "cylinder contacts"},
     },
     "null": {"extra_rolling_friction": 0.0},
+    "diagnose": {"order": 50, "param": "extra_rolling_friction", "s_max": 2.0,
+                 "unit": "-"},
     "references": [
         "Ai J, Chen J-F, Rotter JM, Ooi JY (2011) Powder Technol 206, 269 (rolling resistance "
         "models)",

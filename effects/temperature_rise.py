@@ -36,6 +36,8 @@ DECLARATION = {
                  "description": "room (initial jar) temperature"},
     },
     "null": {"thermal_resistance_k_w": 0.0},
+    "diagnose": {"order": 100, "param": "thermal_resistance_k_w", "s_max": 1.0,
+                 "unit": "K/W"},
     "references": [
         "Anglou et al. (2024) ACS Sustain Chem Eng 12, 9003",
         "Kulla H et al. (2017) Chem Commun 53, 1664 (temperature rise in a vibratory ball mill)",

@@ -34,6 +34,7 @@ DECLARATION = {
                       "description": "impact speed at which e equals the configured restitution"},
     },
     "null": {"k": 0.0},
+    "diagnose": {"order": 10, "param": "k", "s_max": 0.6, "unit": "-"},
     "references": [
         "Kuwabara G, Kono K (1987) Jpn J Appl Phys 26, 1230",
         "Brilliantov NV, Spahn F, Hertzsch J-M, Poeschel T (1996) Phys Rev E 53, 5382",

@@ -32,7 +32,7 @@ def test_catalog_holds_the_eleven_effects():
 @pytest.mark.parametrize("name", NAMES)
 def test_declaration_is_complete_and_consistent(name):
     d = effects.declaration(name)
-    assert set(d) == DECL_KEYS
+    assert DECL_KEYS <= set(d) <= DECL_KEYS | {"diagnose"}
     assert d["name"] == name and d["kind"] in ("dem", "kinetics")
     assert d["physics"] and d["changes"] and d["references"]
     assert d["parameters"] and set(d["null"]) <= set(d["parameters"]) and d["null"]
@@ -47,6 +47,70 @@ def test_declaration_is_complete_and_consistent(name):
     assert effects.validate(name, {}) == {p: float(s["default"]) for p, s in
                                           d["parameters"].items()}
     effects.validate(name, dict(d["null"]))
+
+
+def strength_to_param(coord, p0, s):
+    """analysis.twin_model.Candidate.param_value, restated: the parameter at strength s."""
+    return {"linear": s, "inv_square": p0 / math.sqrt(s), "square": p0 * math.sqrt(s)}[coord]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_diagnose_entry_is_well_formed(name):
+    """The diagnose candidate an effect declares (analysis.twin_model builds its catalog from
+    these entries): a parameter of the effect in its unit, a range whose signature strengths
+    all map into the parameter's bounds, a known strength coordinate."""
+    d = effects.declaration(name)
+    if "diagnose" not in d:
+        pytest.skip("%s declares no diagnose entry" % name)
+    g = d["diagnose"]
+    assert isinstance(g, dict) and set(g) <= effects.DIAGNOSE_KEYS
+    assert {"order", "param", "s_max", "unit"} <= set(g)
+    assert isinstance(g["order"], int) and not isinstance(g["order"], bool)
+    assert g["param"] in d["parameters"]
+    spec = d["parameters"][g["param"]]
+    assert g["unit"] == spec["unit"]
+    coord = g.get("coord", "linear")
+    assert coord in ("linear", "inv_square", "square")
+    p0 = g.get("p0", 1.0)
+    assert isinstance(p0, (int, float)) and math.isfinite(p0) and p0 > 0
+    s_max = g["s_max"]
+    assert isinstance(s_max, (int, float)) and math.isfinite(s_max) and s_max > 0
+    levels = g.get("levels")
+    if levels is not None:
+        assert isinstance(levels, (tuple, list)) and levels
+        assert all(0 < a < b for a, b in zip(levels, levels[1:])) and 0 < levels[-1] <= 1
+    for fr in (levels or (0.5, 1.0)):   # s_max and every signature strength: within bounds
+        v = strength_to_param(coord, p0, fr * s_max)
+        assert spec["lower"] <= v <= spec["upper"], (fr, v)
+    rep = g.get("replicates")
+    assert rep is None or (isinstance(rep, int) and not isinstance(rep, bool) and rep >= 1)
+    fixed = g.get("fixed") or {}
+    assert isinstance(fixed, dict) and g["param"] not in fixed
+    effects.validate(name, dict(fixed))            # known parameters, within their bounds
+    assert isinstance(g.get("optional", False), bool) and isinstance(g.get("decoy", False), bool)
+
+
+def test_diagnose_entries_are_ordered_by_their_order_key():
+    rows = effects.diagnose_entries()
+    orders = [e["order"] for _, _, e in rows]
+    assert orders == sorted(orders) and len(set(orders)) == len(orders)
+    assert sorted(n for n, _, _ in rows) == [n for n in NAMES
+                                             if "diagnose" in effects.declaration(n)]
+    assert all(k == effects.declaration(n)["kind"] for n, k, _ in rows)
+
+
+def test_diagnose_entries_reject_a_clash_or_an_unknown_key(monkeypatch):
+    decl = {n: effects.declaration(n) for n in NAMES}
+    first, second = [n for n in NAMES if "diagnose" in decl[n]][:2]
+    clash = dict(decl[second], diagnose=dict(decl[second]["diagnose"],
+                                             order=decl[first]["diagnose"]["order"]))
+    monkeypatch.setattr(mod(second), "DECLARATION", clash)
+    with pytest.raises(ConfigError, match="the same diagnose order"):
+        effects.diagnose_entries()
+    typo = dict(decl[second], diagnose=dict(decl[second]["diagnose"], s_mxa=1.0))
+    monkeypatch.setattr(mod(second), "DECLARATION", typo)
+    with pytest.raises(ConfigError, match="unknown diagnose key"):
+        effects.diagnose_entries()
 
 
 @pytest.mark.parametrize("name", NAMES)
