@@ -574,37 +574,59 @@ def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m analysis.calibrate",
                                 description="Calibrate restitution, static/rolling friction "
                                             "and the jar amplitude against a measurement "
-                                            "dataset (GP emulator + emcee).")
-    p.add_argument("--dataset", default=str(PAPER_TABLE3_DIR))
-    p.add_argument("--out", default=str(CALIBRATION_DIR))
+                                            "dataset (GP emulator + emcee).",
+                                epilog="example: python -m analysis.calibrate --dataset "
+                                       "data/measurements/paper_table3 --out "
+                                       "results/calibration --workers 2")
+    p.add_argument("--dataset", default=str(PAPER_TABLE3_DIR),
+                   help="measurement dataset folder (default: data/measurements/paper_table3)")
+    p.add_argument("--out", default=str(CALIBRATION_DIR),
+                   help="output folder (default: results/calibration)")
     p.add_argument("--fake", action="store_true",
                    help="use the FAKE analytic twin (analysis.fake_twin), no YADE")
     p.add_argument("--runner", default=None, help="twin runner 'module:function'")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
     p.add_argument("--backend", default="local", choices=("local", "serial", "dask"))
     p.add_argument("--scheduler", default=None)
     p.add_argument("--runs-dir", default=None)
-    p.add_argument("--n-initial", type=int, default=30)
-    p.add_argument("--n-refine", type=int, default=10)
-    p.add_argument("--rounds", type=int, default=2)
-    p.add_argument("--n-validation", type=int, default=3)
-    p.add_argument("--v-rel-sd", type=float, default=0.02)
-    p.add_argument("--f-col-sd-hz", type=float, default=1.0)
+    p.add_argument("--n-initial", type=int, default=30,
+                   help="Latin-hypercube design, each run at every condition "
+                        "[parameter sets] (default %(default)s)")
+    p.add_argument("--n-refine", type=int, default=10,
+                   help="new sets drawn from the posterior per round [parameter sets] "
+                        "(default %(default)s)")
+    p.add_argument("--rounds", type=int, default=2,
+                   help="sequential-design rounds [rounds] (default %(default)s)")
+    p.add_argument("--n-validation", type=int, default=3,
+                   help="twin runs at the posterior mean per condition [seeds] "
+                        "(default %(default)s)")
+    p.add_argument("--v-rel-sd", type=float, default=0.02,
+                   help="measured v_mean sd where the dataset states none, as a fraction of "
+                        "v_mean [-] (default %(default)s)")
+    p.add_argument("--f-col-sd-hz", type=float, default=1.0,
+                   help="measured f_col sd where the dataset states none [Hz] "
+                        "(default %(default)s)")
     p.add_argument("--exclude-mode", action="append", default=None)
     p.add_argument("--operator", default="auto", choices=("auto", "camera", "summary"),
                    help="observation function (default: the camera operator where "
                         "trajectories exist)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="config key fixed in every run, e.g. record_s=0.5 (repeatable)")
+                   help="config key fixed in every run, e.g. record_s=0.5 (repeatable; "
+                        "VALUE in the SI unit the key's name states, e.g. record_s [s], "
+                        "amplitude_m [m])")
     p.add_argument("--base-profile", default=None, metavar="FILE",
                    help="a profile JSON (its 'config': run-config keys, e.g. "
                         "results/apparatus/paper_apparatus.json) fixed in every run, except "
                         "the keys freed by --free; --set overrides it")
     p.add_argument("--free", action="append", default=None, metavar="NAME[=LO:HI]",
                    help="a parameter to calibrate, with optional bounds inside its declared "
-                        "range (repeatable; default: %s; apparatus: %s)"
+                        "range, LO and HI in the parameter's unit [SI unit of NAME, e.g. m "
+                        "for amplitude_m; - for restitution] (repeatable; default: %s; "
+                        "apparatus: %s)"
                         % (", ".join(CALIBRATED), ", ".join(APPARATUS)))
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the design and the sampler [-] (default %(default)s)")
     args = p.parse_args(argv)
     # the twin's inputs and caches are never an output
     protected = [args.dataset, args.runs_dir]

@@ -571,19 +571,26 @@ def _read_model_tracks(folder):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description="Compare twin predictions with a measurement "
-                                 "dataset (residuals, chi2/dof, heat map, Markdown page).")
+                                 "dataset (residuals, chi2/dof, heat map, Markdown page).",
+                                 epilog="example: python -m analysis.compare --dataset "
+                                 "data/measurements/paper_table3 --predictions "
+                                 "twin_predictions.csv --out results/compare/paper_table3 "
+                                 "(twin_predictions.csv: the twin's means over seeds, columns "
+                                 "as --predictions says)")
     ap.add_argument("--dataset", required=True, help="dataset folder data/measurements/<name>/")
     ap.add_argument("--predictions", required=True,
                     help="CSV: condition_id, observable, mean, sd, n_replicates [, time_min]")
     ap.add_argument("--out", required=True, help="output folder (replaced atomically)")
     ap.add_argument("--model-tracks", help="folder of the twin's tracks <condition_id>.csv")
     ap.add_argument("--v-rel-sd", type=float, default=DEFAULT_V_REL_SD,
-                    help="measured v sd where missing, fraction of v (default %(default)s)")
+                    help="measured v sd where missing, fraction of v [-] (default %(default)s)")
     ap.add_argument("--f-col-sd-hz", type=float, default=DEFAULT_F_COL_SD_HZ,
                     help="measured f_col sd where missing [1/s] (default %(default)s)")
     ap.add_argument("--pool-model-sd", action="store_true",
                     help="pool the twin's replicate sd per observable over conditions")
-    ap.add_argument("--z-report", type=float, default=2.0, help="|z| listed in the summary")
+    ap.add_argument("--z-report", type=float, default=2.0,
+                    help="|z| from which a residual is listed in the summary [-] (standard "
+                    "uncertainties; default %(default)s)")
     args = ap.parse_args(argv)
     from analysis.atomic_dir import OutputError, check_out_dir
     try:

@@ -189,8 +189,8 @@ def main(argv=None):
         description=__doc__.split("\n\n")[0],
         epilog="example: python -m analysis.demo --replicates 4 --workers 2")
     p.add_argument("--replicates", type=int, default=4,
-                   help="twin runs per condition at the paper's parameters (seeds)")
-    p.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+                   help="twin runs per condition at the paper's parameters [seeds]")
+    p.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
     p.add_argument("--record-s", type=float, default=0.5, help="recorded time per run [s]")
     p.add_argument("--out", default=str(DEMO_DIR), help="output folder")
     p.add_argument("--no-loop", action="store_true",

@@ -1028,14 +1028,17 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(
         description="Diagnose which candidate effect is missing from the twin, against a "
-        "measurement dataset (see the module docstring for the method).")
+        "measurement dataset (see the module docstring for the method).",
+        epilog="example: python -m analysis.diagnose --dataset data/measurements/paper_table3 "
+        "--model analysis.twin_model:factory --out results/diagnose_paper_table3 --add best")
     ap.add_argument("--dataset", required=True, help="dataset folder data/measurements/<name>/")
     ap.add_argument("--model", required=True,
                     help="package.module:function; function(dataset) returns a dict with "
                     "predict, base_params, effects [, model_se, crn_correlation, fixed_effects]")
     ap.add_argument("--out", required=True, help="output folder (replaced atomically)")
     ap.add_argument("--add", help="effect to switch on afterwards ('best': the verdict's)")
-    ap.add_argument("--alpha", type=float, default=0.01, help="family-wise level")
+    ap.add_argument("--alpha", type=float, default=0.01,
+                    help="family-wise significance level [-] (default %(default)s)")
     args = ap.parse_args(argv)
     from analysis.atomic_dir import check_out_dir
     try:

@@ -233,11 +233,17 @@ def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m analysis.emulator",
                                 description="Fit the GP emulator to a sweep table (CSV with "
                                             "input and output columns) and print its "
-                                            "leave-one-out error.")
+                                            "leave-one-out error.",
+                                epilog="example: python -m analysis.emulator "
+                                       "results/twin_tables/twin_table.csv --inputs frequency_hz "
+                                       "ball_diameter_m")
     p.add_argument("table", help="CSV of runs (e.g. from python -m analysis.sweep --out)")
     p.add_argument("--inputs", nargs="+", required=True, help="input columns")
-    p.add_argument("--outputs", nargs="+", default=["v_mean_m_s", "f_col_hz"])
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--outputs", nargs="+", default=["v_mean_m_s", "f_col_hz"],
+                   help="output columns (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the hyperparameter optimiser's restarts [-] "
+                        "(default %(default)s)")
     args = p.parse_args(argv)
     try:
         df = pd.read_csv(args.table)

@@ -703,7 +703,7 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--movie", metavar="OUT", help="write a movie: OUT.mp4 (mp4v) or "
                       "OUT.gif; a sidecar OUT.json goes beside it")
     p.add_argument("--every", type=int, metavar="N", help="VTK: write every N-th recorded "
-                   f"frame (default 1: all of them, {rec_fps:g} per s of record)")
+                   f"frame [frames] (default 1: all of them, {rec_fps:g} per s of record)")
     p.add_argument("--fps", type=float, metavar="F", help="movie: playback rate [frames/s] "
                    f"(default {DEFAULT_MOVIE_FPS:g}); every recorded frame is shown, so at "
                    f"the twin's {rec_fps:g} recorded frames/s the default slows the motion "

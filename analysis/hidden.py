@@ -235,15 +235,29 @@ def _per_condition(given, estimated, ids, what):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--name", required=True)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.hidden --name hidden_visco "
+                                "--effect viscoelastic_restitution:k=0.05 --replicates 2")
+    p.add_argument("--name", required=True,
+                   help="dataset name: folder data/measurements/NAME, truth "
+                   "results/hidden/NAME.truth.json")
     p.add_argument("--effect", action="append", default=[],
-                   help="name:param=value,... (repeatable; none = a no-effect control)")
-    p.add_argument("--replicates", type=int, default=2)
-    p.add_argument("--v-rel-sd", type=float, default=0.015)
-    p.add_argument("--f-col-sd-hz", type=float, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=2)
+                   help="name:param=value,... (repeatable; none = a no-effect control); each "
+                   "value in the unit its effect declares [effects/<name>.py 'unit', e.g. - "
+                   "for viscoelastic_restitution's k]")
+    p.add_argument("--replicates", type=int, default=2,
+                   help="twin runs per condition, their mean is the measured value [seeds] "
+                   "(default %(default)s)")
+    p.add_argument("--v-rel-sd", type=float, default=0.015,
+                   help="measurement noise sd of v_mean, as a fraction of v_mean [-] "
+                   "(default %(default)s)")
+    p.add_argument("--f-col-sd-hz", type=float, default=1.0,
+                   help="measurement noise sd of f_col [Hz] (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seeds the measurement noise and the replicates' start positions [-] "
+                   "(default %(default)s)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
     p.add_argument("--fake", action="store_true", help="use the FAKE analytic twin (tests)")
     a = p.parse_args(argv)
     try:

@@ -345,14 +345,20 @@ def _write_page(out_dir, ds, cmp0, diag, added, stair, reveal, times, truth):
 
 def main(argv=None):
     from analysis.hidden import parse_effect
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.hidden_demo "
+                                 "--secret-seed 2026 --out results/hidden_demo")
     ap.add_argument("--secret-seed", type=int, default=2026,
-                    help="picks the hidden effect and strength (default %(default)s)")
-    ap.add_argument("--effect", help="hide this effect instead (name:param=value)")
-    ap.add_argument("--noise-seed", type=int, default=11)
-    ap.add_argument("--workers", type=int, default=2)
+                    help="picks the hidden effect and strength [-] (default %(default)s)")
+    ap.add_argument("--effect", help="hide this effect instead (name:param=value; value in "
+                    "the unit its effect declares [effects/<name>.py 'unit'])")
+    ap.add_argument("--noise-seed", type=int, default=11,
+                    help="seeds the dataset's measurement noise [-] (default %(default)s)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
     ap.add_argument("--no-verify", action="store_true", help="skip the twin rerun")
-    ap.add_argument("--out", default=str(HIDDEN_DEMO_DIR))
+    ap.add_argument("--out", default=str(HIDDEN_DEMO_DIR),
+                    help="output folder (default: results/hidden_demo)")
     a = ap.parse_args(argv)
     try:
         spec = dict([parse_effect(a.effect)]) if a.effect else None

@@ -361,11 +361,18 @@ def _pct(x):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--noise-seeds", type=int, default=5)
-    ap.add_argument("--twin-seed", type=int, default=7)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", default=str(SUITE_DIR))
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.hidden_suite "
+                                 "--noise-seeds 5 --fresh --also-without-tracks")
+    ap.add_argument("--noise-seeds", type=int, default=5,
+                    help="measurement-noise draws per twin data set, seeds 0..N-1 [seeds] "
+                    "(default %(default)s)")
+    ap.add_argument("--twin-seed", type=int, default=7,
+                    help="seeds the twin runs' start positions [-] (default %(default)s)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
+    ap.add_argument("--out", default=str(SUITE_DIR),
+                    help="output folder (default: results/hidden_suite)")
     ap.add_argument("--fresh", action="store_true", help="forget earlier suite rows")
     ap.add_argument("--no-flights", action="store_true",
                     help="diagnose on v_mean, f_col and yields only (ignore the jar tracks)")

@@ -885,7 +885,9 @@ def predict_yield(fit: KineticsFit, e_kin_j: float, f_col_hz: float, time_min,
 def _build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m analysis.kinetics",
                                 description="Fit yield vs cumulative collision energy (paper Sec. 4) "
-                                            "and write tables + Figures 9-11 to results/kinetics/.")
+                                            "and write tables + Figures 9-11 to results/kinetics/.",
+                                epilog="example: python -m analysis.kinetics --twin-table "
+                                       "results/twin_tables/all_runs.csv --out results/kinetics")
     p.add_argument("--yields", type=Path, default=None,
                    help="measurement dataset folder with yields.csv (default: the SYNTHETIC "
                         "data/measurements/synthetic_yields_paper)")
@@ -894,10 +896,15 @@ def _build_parser() -> argparse.ArgumentParser:
                         "default: paper Table 3 measurements")
     p.add_argument("--velocity-assumption", choices=["interp", "as_is"], default="interp",
                    help="without --twin-table: how Table 3 (17.5/20.6 mm) speeds map to 20 mm")
-    p.add_argument("--method", choices=["continuous", "candidates"], default="continuous")
-    p.add_argument("--n-boot", type=int, default=500)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=config.KINETICS_DIR)
+    p.add_argument("--method", choices=["continuous", "candidates"], default="continuous",
+                   help="regime-boundary search (default %(default)s)")
+    p.add_argument("--n-boot", type=int, default=500,
+                   help="case-resampling bootstrap replicates of the boundaries [replicates] "
+                        "(0: none; default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the bootstrap [-] (default %(default)s)")
+    p.add_argument("--out", type=Path, default=config.KINETICS_DIR,
+                   help="output folder (default: results/kinetics)")
     return p
 
 

@@ -1016,31 +1016,31 @@ def main(argv=None):
     ap.add_argument("--out", required=True,
                     help="output folder; replaced only when an earlier loop wrote it")
     ap.add_argument("--budget-runs", type=int, default=None,
-                    help="most new twin runs to start (default: no limit); the loop stops "
+                    help="most new twin runs to start [runs] (default: no limit); the loop stops "
                     "with exit 3 before a build that needs more")
     ap.add_argument("--dry-run", action="store_true",
                     help="print the first build's plan (runs, cached, estimated wall time) "
                     "and exit; nothing is run or written")
-    ap.add_argument("--replicates", type=int, default=3, help="anchor seeds per condition")
+    ap.add_argument("--replicates", type=int, default=3, help="anchor seeds per condition [seeds]")
     ap.add_argument("--diff-replicates", type=int, default=2,
-                    help="seeds per base-parameter / effect level")
+                    help="seeds per base-parameter / effect level [seeds]")
     ap.add_argument("--no-rerun", action="store_true", help="skip the final twin rerun")
     ap.add_argument("--rerun-replicates", type=int, default=3,
-                    help="seeds per condition of the final twin rerun")
+                    help="seeds per condition of the final twin rerun [seeds]")
     ap.add_argument("--max-refits", type=int, default=MAX_POLISH,
-                    help="twin-corrected refits after the rerun: the model shifted onto the "
+                    help="[refits] twin-corrected refits after the rerun: the model shifted onto the "
                     "rerun's means at the fitted point and refitted; a point that moves gets "
                     "its own rerun (0: the rerun only scores the fit)")
     ap.add_argument("--alpha", type=float, default=0.01,
-                    help="family-wise significance level of each diagnosis step")
+                    help="family-wise significance level of each diagnosis step [-]")
     ap.add_argument("--null-draws", type=int, default=20,
-                    help="datasets drawn from the fitted model per step to calibrate the "
+                    help="[datasets] datasets drawn from the fitted model per step to calibrate the "
                     "significance threshold (0: nominal level only)")
     ap.add_argument("--max-reanchor", type=int, default=MAX_REANCHOR,
-                    help="most re-anchorings of the model where the answer lies beyond its "
+                    help="[re-anchorings] most re-anchorings of the model where the answer lies beyond its "
                     "measured responses (each costs a new model build)")
     ap.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
-                    help="most effects added (forward selection)")
+                    help="most effects added (forward selection) [effects]")
     ap.add_argument("--frame", choices=("lab", "jar", "auto"), default="lab",
                     help="frame the twin runs are integrated in (run config 'frame'): 'auto' "
                     "runs the jar frame where the effects allow it, 1.7x faster per run; the "
@@ -1053,7 +1053,7 @@ def main(argv=None):
                     "(repeatable): end_fillet (the jar's end edges rounded more; needs the "
                     "default or a parametric jar)")
     ap.add_argument("--v-rel-sd", type=float, default=None, metavar="F",
-                    help="measurement sd of v_mean assumed where the dataset states none, as a "
+                    help="[-] measurement sd of v_mean assumed where the dataset states none, as a "
                     "fraction of v_mean (default 0.015; e.g. 0.01 for 1 %%)")
     ap.add_argument("--set", action="append", default=[], dest="settings", metavar="KEY=VALUE",
                     type=parse_key_value,
@@ -1061,7 +1061,7 @@ def main(argv=None):
                     "apparatus, e.g. jar_inner_diameter_m=0.028 jar_fillet_radius_m=0.01 or "
                     "stl_path=my_jar.stl (docs/apparatus.md), rolling_model, dt_s; not the "
                     "conditions, seeds, effects or the calibrated base parameters")
-    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
     ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
                     help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")
     ap.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")

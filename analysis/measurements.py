@@ -568,7 +568,9 @@ def measurement_table(dataset: Dataset, v_rel_sd: float = DEFAULT_V_REL_SD,
 
 def main(argv=None):
     """``python -m analysis.measurements DIR``: validate a dataset and print what it holds."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 epilog="example: python -m analysis.measurements "
+                                 "data/measurements/paper_table3")
     ap.add_argument("dataset", help="dataset folder data/measurements/<name>/")
     args = ap.parse_args(argv)
     try:

@@ -230,12 +230,12 @@ def main(argv=None):
     ap.add_argument("--datasets", default=str(DATASETS_DIR), help="folder of the datasets")
     ap.add_argument("--out", default=str(OUT_DIR), help="folder of the loop outputs")
     ap.add_argument("--only", action="append", help="only this dataset (repeatable)")
-    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
     ap.add_argument("--no-rerun", action="store_true", help="skip each loop's twin rerun")
     ap.add_argument("--max-reanchor", type=int, default=2,
-                    help="re-anchorings allowed per loop (0: keep the first model)")
+                    help="re-anchorings allowed per loop [-] (0: keep the first model)")
     ap.add_argument("--null-draws", type=int, default=20,
-                    help="bootstrap draws per diagnosis step (0: nominal threshold only)")
+                    help="bootstrap draws per diagnosis step [datasets] (0: nominal threshold only)")
     a = ap.parse_args(argv)
     summ = run_suite(a.datasets, a.out, only=a.only, workers=a.workers,
                      rerun=not a.no_rerun, max_reanchor=a.max_reanchor,

@@ -824,7 +824,9 @@ def build_reports(results_dir=RESULTS_DIR) -> list[PageResult]:
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.report --results-dir "
+                                "results --strict")
     p.add_argument("--results-dir", default=str(RESULTS_DIR),
                    help="folder holding the study folders (default: results/)")
     p.add_argument("--strict", action="store_true",

@@ -264,18 +264,31 @@ def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m analysis.sensitivity",
                                 description="Figure-8 grid study (C_R x SF x RF at 25 Hz, "
                                             "20.6 mm, replicates) and Sobol indices on a GP "
-                                            "emulator fitted to the grid runs.")
-    p.add_argument("--out", default=str(STUDIES_DIR / "sensitivity"))
+                                            "emulator fitted to the grid runs.",
+                                epilog="example: python -m analysis.sensitivity --out "
+                                       "results/studies/sensitivity --replicates 3 --workers 2")
+    p.add_argument("--out", default=str(STUDIES_DIR / "sensitivity"),
+                   help="output folder (default: results/studies/sensitivity)")
     p.add_argument("--fake", action="store_true", help="use the FAKE analytic twin")
-    p.add_argument("--runner", default=None)
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--runner", default=None, help="twin runner 'module:function'")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
     p.add_argument("--backend", default="local", choices=("local", "serial", "dask"))
     p.add_argument("--runs-dir", default=None)
-    p.add_argument("--replicates", type=int, default=3)
-    p.add_argument("--record-s", type=float, default=None)
-    p.add_argument("--target", type=float, default=FIGURE8_TARGET_M_S)
-    p.add_argument("--n-base", type=int, default=1024)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--replicates", type=int, default=3,
+                   help="runs per grid point, differing in the seed [seeds] "
+                        "(default %(default)s)")
+    p.add_argument("--record-s", type=float, default=None,
+                   help="recorded time per run [s] (default: the run config's)")
+    p.add_argument("--target", type=float, default=FIGURE8_TARGET_M_S,
+                   help="measured mean ball speed the grid points must reproduce [m/s] "
+                        "(default %(default)s)")
+    p.add_argument("--n-base", type=int, default=1024,
+                   help="Sobol base sample size N, a power of 2 [samples] "
+                        "(default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the emulator fit and the Sobol sampling [-] "
+                        "(default %(default)s)")
     args = p.parse_args(argv)
     import matplotlib
     matplotlib.use("Agg")

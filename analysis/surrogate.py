@@ -695,7 +695,10 @@ BUNDLE_PATH = config.SURROGATE_DIR / "surrogate.joblib"
 # --------------------------------------------------------------------------------------------
 def _parser():
     p = argparse.ArgumentParser(prog="python -m analysis.surrogate",
-                                description="Train (f, BVR) -> (v_mean, f_col) surrogates (paper Sec. 5).")
+                                description="Train (f, BVR) -> (v_mean, f_col) surrogates (paper Sec. 5).",
+                                epilog="example: python -m analysis.surrogate --twin-table "
+                                       "results/twin_tables/twin_table.csv --validation-table "
+                                       "results/twin_tables/validation_table.csv")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--twin-table", type=Path, help="CSV of twin outputs (frequency_hz, "
                      "ball_diameter_m, bvr, v_mean_m_s, f_col_hz[, run_id])")
@@ -703,12 +706,18 @@ def _parser():
                      help="train on a SYNTHETIC table from synthetic_truth on design_27()")
     p.add_argument("--validation-table", type=Path, default=None,
                    help="CSV of twin outputs at validation cases (Table 5: d = 20 mm)")
-    p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS,
+                   help="surrogate kinds to train (default: all)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the fits, subsets and the synthetic table [-] "
+                        "(default %(default)s)")
     p.add_argument("--lc-repeats", type=int, default=5,
-                   help="random training subsets per size in the learning curve (0: skip it)")
-    p.add_argument("--jar-volume-ml", type=float, default=25.0)
-    p.add_argument("--out", type=Path, default=config.SURROGATE_DIR)
+                   help="random training subsets per size in the learning curve [subsets] "
+                        "(0: skip it)")
+    p.add_argument("--jar-volume-ml", type=float, default=25.0,
+                   help="jar volume [mL] (BVR = ball volume / jar volume; default %(default)s)")
+    p.add_argument("--out", type=Path, default=config.SURROGATE_DIR,
+                   help="output folder (default: results/surrogate)")
     return p
 
 

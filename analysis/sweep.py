@@ -1163,17 +1163,24 @@ def parse_key_value(text):
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m analysis.sweep",
                                 description="Run a table of twin configs in parallel (cached "
-                                            "by run id; see the module docstring for clusters).")
+                                            "by run id;\nsee the module docstring for "
+                                            "clusters).",
+                                epilog="example: printf 'frequency_hz,ball_diameter_m,seed\\n"
+                                       "25,0.0206,0\\n30,0.0175,0\\n' > params.csv\n"
+                                       "example: python -m analysis.sweep --table params.csv "
+                                       "--workers 2 --out sweep.csv",
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--table", help="parameter table: CSV or yade-batch text, one run per row")
     p.add_argument("--sweep-config", help="YAML/JSON file with any of the options below")
-    p.add_argument("--workers", type=int, help="parallel workers (default 2)")
+    p.add_argument("--workers", type=int, help="parallel workers [processes] (default 2)")
     p.add_argument("--backend", choices=BACKENDS, help="default local")
     p.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://head:8786")
     p.add_argument("--slurm", action="store_true", help="start Dask workers as SLURM jobs")
-    p.add_argument("--cores", type=int, help="SLURM: cores (= single-threaded workers) per job")
+    p.add_argument("--cores", type=int,
+                   help="SLURM: cores (= single-threaded workers) per job [cores]")
     p.add_argument("--memory", help="SLURM: memory per job, e.g. 16GB")
-    p.add_argument("--walltime", help="SLURM: walltime per job, e.g. 02:00:00")
-    p.add_argument("--jobs", type=int, help="SLURM: number of jobs")
+    p.add_argument("--walltime", help="SLURM: walltime per job [HH:MM:SS], e.g. 02:00:00")
+    p.add_argument("--jobs", type=int, help="SLURM: number of jobs [jobs]")
     p.add_argument("--queue", help="SLURM: partition")
     p.add_argument("--account", help="SLURM: account")
     p.add_argument("--prologue", action="append", help="SLURM: shell line run before the "
@@ -1184,7 +1191,8 @@ def build_parser():
     p.add_argument("--runner-kw", action="append", type=parse_key_value, default=[],
                    help="key=value bound to the runner (repeatable)")
     p.add_argument("--set", action="append", type=parse_key_value, default=[], dest="base",
-                   help="config key=value merged into every row (repeatable)")
+                   help="config key=value merged into every row (repeatable; value in the "
+                        "SI unit the key's name states, e.g. record_s [s])")
     p.add_argument("--export-yade-table", metavar="FILE",
                    help="write the sweep as a yade-batch table and exit without running")
     p.add_argument("--out", help="write the sweep table (status, errors, summaries) as CSV")

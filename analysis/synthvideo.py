@@ -750,17 +750,26 @@ def noise_blur_study(out_csv=None, frequencies=(22.5, 30.0), duration_s: float =
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m analysis.synthvideo",
                                 description="Synthetic high-speed video of the 1-D bounce model "
-                                            "(or a twin recording), or the noise/blur study.")
+                                            "(or a twin recording), or the noise/blur study.",
+                                epilog="example: python -m analysis.synthvideo --out film.mkv "
+                                       "--frequency-hz 30 --duration-s 0.3")
     p.add_argument("--out", help="video file (.mkv) to write")
     p.add_argument("--recording", help="film a twin recording folder instead of the bounce model")
-    p.add_argument("--frequency-hz", type=float, default=30.0)
-    p.add_argument("--duration-s", type=float, default=0.3)
-    p.add_argument("--fps", type=float, default=CAMERA_FPS)
-    p.add_argument("--exposure-us", type=float, default=100.0)
-    p.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma, grey levels")
+    p.add_argument("--frequency-hz", type=float, default=30.0,
+                   help="jar frequency of the bounce model [Hz] (default %(default)s)")
+    p.add_argument("--duration-s", type=float, default=0.3,
+                   help="length of the bounce model's video [s] (default %(default)s)")
+    p.add_argument("--fps", type=float, default=CAMERA_FPS,
+                   help="camera frame rate [frames/s] (default %(default)s)")
+    p.add_argument("--exposure-us", type=float, default=100.0,
+                   help="exposure time per frame, sets the motion blur [us] "
+                        "(default %(default)s)")
+    p.add_argument("--noise", type=float, default=2.0,
+                   help="sensor noise sigma [grey levels] (default %(default)s)")
     p.add_argument("--no-occluder", action="store_true")
     p.add_argument("--frame", choices=("lab", "jar"), default="lab")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the noise and flicker [-] (default %(default)s)")
     p.add_argument("--noise-study", action="store_true",
                    help="run the noise/blur study -> results/observe/noise_blur_study.csv")
     a = p.parse_args(argv)

@@ -1034,11 +1034,17 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.twin_model --build "
+                                 "--replicates 2 --out results/signatures")
     ap.add_argument("--build", action="store_true", help="run and write the signature library")
-    ap.add_argument("--replicates", type=int, default=2)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", default=str(SIGNATURE_DIR))
+    ap.add_argument("--replicates", type=int, default=2,
+                    help="twin runs per condition and effect level (the anchor has at least "
+                    "4) [seeds] (default %(default)s)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
+    ap.add_argument("--out", default=str(SIGNATURE_DIR),
+                    help="signature library folder (default: results/signatures)")
     ap.add_argument("--flights", action="store_true",
                     help="recompute the impact observables of the library's (and the "
                     "calibration's) cached runs; no new twin runs")

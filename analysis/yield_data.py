@@ -427,15 +427,28 @@ def _summary_for(energy: pd.DataFrame) -> pd.DataFrame:
 
 
 def main(argv=None) -> int:
+    gen_example = ("example: python -m analysis.yield_data generate --out "
+                   "data/measurements/synthetic_yields_paper --seed 0")
+    check_example = ("example: python -m analysis.yield_data check "
+                     "data/measurements/synthetic_yields_paper")
     p = argparse.ArgumentParser(prog="python -m analysis.yield_data",
-                                description="Generate SYNTHETIC yield data or check a yield dataset.")
+                                description="Generate SYNTHETIC yield data or check a yield dataset.",
+                                epilog=gen_example + "\n" + check_example,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    g = sub.add_parser("generate", help="write a SYNTHETIC dataset consistent with the paper")
-    g.add_argument("--out", type=Path, default=SYNTHETIC_DATASET_DIR)
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--n-replicates", type=int, default=1)
-    c = sub.add_parser("check", help="validate data/measurements/<name> (yields.csv)")
-    c.add_argument("path", type=Path)
+    g = sub.add_parser("generate", help="write a SYNTHETIC dataset consistent with the paper",
+                       epilog=gen_example)
+    g.add_argument("--out", type=Path, default=SYNTHETIC_DATASET_DIR,
+                   help="dataset folder to write (default: "
+                        "data/measurements/synthetic_yields_paper)")
+    g.add_argument("--seed", type=int, default=0,
+                   help="random seed of the synthetic yields [-] (default %(default)s)")
+    g.add_argument("--n-replicates", type=int, default=1,
+                   help="samples per condition and milling time [samples] "
+                        "(default %(default)s)")
+    c = sub.add_parser("check", help="validate data/measurements/<name> (yields.csv)",
+                       epilog=check_example)
+    c.add_argument("path", type=Path, help="dataset folder data/measurements/<name>/")
     args = p.parse_args(argv)
     from analysis.atomic_dir import OutputError
     try:

@@ -206,13 +206,22 @@ def mesh_for_config(cfg, stl_abs_path):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m geometry.jar --out "
+                                "geometry/mm400_25ml.stl --diameter-mm 28 --fillet-mm 5 "
+                                "--volume-ml 25")
     p.add_argument("--out", default="geometry/mm400_25ml.stl", help="STL to write (in mm)")
-    p.add_argument("--diameter-mm", type=float, default=DEFAULTS["inner_diameter_m"] * 1e3)
-    p.add_argument("--fillet-mm", type=float, default=DEFAULTS["fillet_radius_m"] * 1e3)
-    p.add_argument("--volume-ml", type=float, default=DEFAULTS["volume_m3"] * 1e6)
+    p.add_argument("--diameter-mm", type=float, default=DEFAULTS["inner_diameter_m"] * 1e3,
+                   help="inner diameter of the cavity [mm] (default %(default).4g)")
+    p.add_argument("--fillet-mm", type=float, default=DEFAULTS["fillet_radius_m"] * 1e3,
+                   help="radius of the rounded edge between cylinder and end cap [mm] "
+                   "(default %(default).4g)")
+    p.add_argument("--volume-ml", type=float, default=DEFAULTS["volume_m3"] * 1e6,
+                   help="cavity volume the mesh encloses; the inner length is solved for it "
+                   "[mL] (default %(default).4g)")
     p.add_argument("--n-circ", type=int, default=DEFAULTS["n_circ"],
-                   help="segments around the circumference (sets the facet count)")
+                   help="segments around the circumference (sets the facet count) [segments] "
+                   "(default %(default)s)")
     a = p.parse_args(argv)
     try:
         if a.diameter_mm <= 0 or a.volume_ml <= 0 or a.fillet_mm <= 0:

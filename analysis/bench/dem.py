@@ -11,6 +11,7 @@ Printed beside the paper's 5 min of CPU per run (EDEM 2021.1, Intel i9-12900). G
     python -m analysis.bench.dem
 Runs are forced (not cached) and written to a temporary folder.
 """
+import argparse
 import sys
 import tempfile
 
@@ -21,6 +22,10 @@ PAPER_S_PER_RUN = 300.0
 
 
 def main(argv=None):
+    argparse.ArgumentParser(prog="python -m analysis.bench.dem", description=__doc__,
+                            epilog="example: python -m analysis.bench.dem",
+                            formatter_class=argparse.RawDescriptionHelpFormatter
+                            ).parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench-dem-") as tmp:
         a = load_recording(run_twin({"protocol": "free", "dt_s": 5e-7, "frequency_hz": 25.0,
                                      "ball_start": "random", "record_s": 0.1, "seed": 3},

@@ -29,10 +29,16 @@ OUT = RESULTS_DIR / "bench" / "loop_cold.txt"
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", default=str(DEFAULT_DATASET))
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--frame", choices=("lab", "jar", "auto"), default="auto")
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.bench.loop_cold --dataset "
+                                "results/open_world/datasets/visco --workers 2 --frame auto")
+    p.add_argument("--dataset", default=str(DEFAULT_DATASET),
+                   help="dataset folder (default: results/open_world/datasets/visco)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
+    p.add_argument("--frame", choices=("lab", "jar", "auto"), default="auto",
+                   help="frame of the twin's scene (default %(default)s: the jar frame where "
+                   "the effects allow it)")
     p.add_argument("--keep-runs", default=None, metavar="DIR",
                    help="an empty or new folder that keeps the runs (default: a temporary "
                         "folder, deleted)")

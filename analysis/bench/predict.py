@@ -41,9 +41,14 @@ def bench(kind: str, n: int, seed: int = 0) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m analysis.bench.predict", description=__doc__)
-    ap.add_argument("--n", type=int, default=300)
-    ap.add_argument("--kinds", nargs="+", default=["lr", "gp", "rf"])
+    ap = argparse.ArgumentParser(prog="python -m analysis.bench.predict", description=__doc__,
+                                 epilog="example: python -m analysis.bench.predict --n 300 "
+                                 "--kinds lr gp rf",
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=300,
+                    help="timed queries per surrogate kind [queries] (default %(default)s)")
+    ap.add_argument("--kinds", nargs="+", default=["lr", "gp", "rf"],
+                    help="surrogate kinds to time (default: %(default)s)")
     args = ap.parse_args(argv)
     print(f"predict latency per query (1 condition x 4 times), goal < {GOAL_MS:g} ms")
     ok = True

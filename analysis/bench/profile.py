@@ -67,7 +67,9 @@ def table(case: str, prof: dict) -> pd.DataFrame:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.bench.profile --out "
+                                 "results/bench/scene_profile.csv")
     ap.add_argument("--out", default=str(OUT), help="CSV of the table")
     a = ap.parse_args(argv)
     parts = []

@@ -54,14 +54,17 @@ def bench(runner, runner_kwargs, n_runs, record_s, workers_list=(1, 2)):
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m analysis.bench.sweep", description=__doc__,
+                                epilog="example: python -m analysis.bench.sweep --fake "
+                                       "--n-runs 8 --cpu-s 2",
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--runner", help="runner 'module:function' (default: real twin if yade "
                                     "is available, else the fake)")
     p.add_argument("--runner-kw", action="append", type=parse_key_value, default=[])
     p.add_argument("--fake", action="store_true", help="force the CPU-bound FAKE runner")
-    p.add_argument("--cpu-s", type=float, default=2.0, help="fake runner: CPU s per run")
+    p.add_argument("--cpu-s", type=float, default=2.0,
+                   help="fake runner: CPU time per run [s] (default %(default)s)")
     p.add_argument("--n-runs", type=int, default=None,
-                   help="runs per worker count (default 8 fake, 4 real)")
+                   help="runs per worker count [runs] (default 8 fake, 4 real)")
     p.add_argument("--record-s", type=float, default=0.05,
                    help="record_s of the real twin's runs [s] (short: this times the sweep)")
     args = p.parse_args(argv)

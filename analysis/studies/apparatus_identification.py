@@ -115,7 +115,11 @@ def write(cal_dir, params, comp, samples, summary, base, profile=None):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m "
+                                "analysis.studies.apparatus_identification "
+                                "--cal results/apparatus/identify_paper_dem --profile "
+                                "results/apparatus/paper_apparatus.json")
     p.add_argument("--cal", default=str(CAL), help="calibration folder")
     p.add_argument("--base", default=None,
                    help="JSON of the run-config keys the calibration held fixed (its --set; "

@@ -125,9 +125,14 @@ def write(summary: pd.DataFrame, seeds: int, out=OUT):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--seeds", type=int, default=2)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.studies.apparatus_screen "
+                                "--workers 2 --seeds 2")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
+    p.add_argument("--seeds", type=int, default=2,
+                   help="start positions per condition and variant [seeds] "
+                   "(default %(default)s)")
     a = p.parse_args(argv)
     from analysis.sweep import run_sweep
     cond = conditions()

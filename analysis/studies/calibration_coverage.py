@@ -59,11 +59,21 @@ def run(trials=30, seed=2026, **calib_kw):
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m analysis.studies.calibration_coverage",
                                 description=__doc__,
+                                epilog="example: python -m analysis.studies.calibration_coverage "
+                                       "--trials 30 --out "
+                                       "results/studies/calibration_coverage_fake.csv",
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--trials", type=int, default=30)
-    p.add_argument("--n-steps", type=int, default=1500)
-    p.add_argument("--seed", type=int, default=2026)
-    p.add_argument("--out", default=str(STUDIES_DIR / "calibration_coverage_fake.csv"))
+    p.add_argument("--trials", type=int, default=30,
+                   help="true parameter sets drawn and calibrated [trials] "
+                        "(default %(default)s)")
+    p.add_argument("--n-steps", type=int, default=1500,
+                   help="emcee steps per walker, the first third burnt [steps] "
+                        "(default %(default)s)")
+    p.add_argument("--seed", type=int, default=2026,
+                   help="random seed of the truths and the calibrations [-] "
+                        "(default %(default)s)")
+    p.add_argument("--out", default=str(STUDIES_DIR / "calibration_coverage_fake.csv"),
+                   help="CSV to write (default: results/studies/calibration_coverage_fake.csv)")
     args = p.parse_args(argv)
     with threadpool_limits(1):
         df = run(args.trials, args.seed, n_steps=args.n_steps, burn=args.n_steps // 3)

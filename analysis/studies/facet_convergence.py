@@ -34,10 +34,15 @@ def build_meshes(levels=N_CIRC):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--frequency-hz", type=float, default=25.0)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.studies.facet_convergence "
+                                "--seeds 2 --workers 2")
+    p.add_argument("--seeds", type=int, default=2,
+                   help="start positions per mesh and ball [seeds] (default %(default)s)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
+    p.add_argument("--frequency-hz", type=float, default=25.0,
+                   help="jar frequency [Hz] (default %(default)s)")
     a = p.parse_args(argv)
     from analysis.sweep import run_sweep
     n_facets = build_meshes()

@@ -88,8 +88,11 @@ def wall_times(ids, runs_dir=RUNS_DIR):
 def main(argv=None):
     from analysis.sweep import run_sweep
     from analysis.twin_model import run_flights
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--workers", type=int, default=2)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.studies.frame_equivalence "
+                                 "--workers 2 --out results/studies/frame_equivalence")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
     ap.add_argument("--out", default=str(OUT), help="output prefix (.csv and .md are added)")
     a = ap.parse_args(argv)
     lab, cfgs = lab_configs()

@@ -39,7 +39,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.studies.hidden_blind_data")
     ap.add_argument("--out", default=str(OUT_DIR), help="parent folder of the datasets")
-    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
     a = ap.parse_args(argv)
     from pathlib import Path
     for name in CASES:

@@ -191,19 +191,21 @@ def main(argv=None):
     ap.add_argument("--only", action="append", choices=sorted(CASES) + ["none"],
                     help="make only this case (repeatable; 'none': no case, e.g. with "
                     "--nulls)")
-    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
     ap.add_argument("--films", action="append", default=None, metavar="NAME",
                     help="also write NAME_film: the dataset with films instead of tracks "
                     "(default: visco; 'none': no films)")
     ap.add_argument("--nulls", type=int, default=0,
                     help="also write this many no-effect datasets null_pNN with base "
-                    "parameters drawn from the calibration posterior")
+                    "parameters drawn from the calibration posterior [datasets]")
     ap.add_argument("--effects", type=int, default=0,
                     help="also write this many one-effect datasets eff_pNN (effect and "
-                    "strength drawn, base parameters from the calibration posterior)")
+                    "strength drawn, base parameters from the calibration posterior) [datasets]")
     ap.add_argument("--pairs", type=int, default=0,
                     help="also write this many two-effect datasets pair_pNN (pairs of hidden "
-                    "effects in turn, strengths drawn, base parameters from the posterior)")
+                    "effects in turn, strengths drawn, base parameters from the posterior) "
+                    "[datasets]")
     a = ap.parse_args(argv)
     for name in [c for c in (a.only or sorted(CASES)) if c != "none"]:
         ds, truth = make(name, a.out, a.workers)

@@ -16,10 +16,15 @@ from analysis.config import OBSERVE_DIR
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--replicates", type=int, default=2)
-    p.add_argument("--record-s", type=float, default=0.5)
-    p.add_argument("--workers", type=int, default=2)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.studies.operator_bias "
+                                "--replicates 2 --record-s 0.5")
+    p.add_argument("--replicates", type=int, default=2,
+                   help="twin runs per condition [seeds] (default %(default)s)")
+    p.add_argument("--record-s", type=float, default=0.5,
+                   help="recorded time per run [s] (default %(default)s)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
     a = p.parse_args(argv)
     from analysis.demo import demo_configs, measured_table
     from analysis.observe import operator_bias

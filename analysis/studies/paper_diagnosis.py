@@ -136,12 +136,18 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.studies.paper_diagnosis "
+                                 "--replicates 2 --workers 2 --out results/paper_diagnosis")
     ap.add_argument("--add", help="add this effect instead of the verdict's")
-    ap.add_argument("--replicates", type=int, default=2)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--no-verify", action="store_true")
-    ap.add_argument("--out", default=str(OUT_DIR))
+    ap.add_argument("--replicates", type=int, default=2,
+                    help="twin runs per condition of the rerun with the effect [seeds] "
+                    "(default %(default)s)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
+    ap.add_argument("--no-verify", action="store_true", help="skip the twin rerun")
+    ap.add_argument("--out", default=str(OUT_DIR),
+                    help="output folder (default: results/paper_diagnosis)")
     a = ap.parse_args(argv)
     try:
         run(a.out, add=a.add, replicates=a.replicates, workers=a.workers,

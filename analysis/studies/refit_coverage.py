@@ -93,14 +93,22 @@ def summary_rows(results) -> pd.DataFrame:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="example: python -m analysis.studies.refit_coverage "
+                                 "--loops results/open_world/loop_effects --datasets "
+                                 "results/open_world/effects --out results/open_world/refits")
     ap.add_argument("--loops", default=str(LOOPS_DIR), help="the suite's loop outputs")
     ap.add_argument("--datasets", default=str(DATASETS_DIR), help="their datasets")
     ap.add_argument("--out", default=str(OUT_DIR), help="output folder")
     ap.add_argument("--only", action="append", help="only this dataset (repeatable)")
-    ap.add_argument("--rerun-replicates", type=int, default=3)
-    ap.add_argument("--max-refits", type=int, default=2)
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--rerun-replicates", type=int, default=3,
+                    help="twin reruns per condition at the fitted point, fresh seeds [seeds] "
+                    "(default %(default)s)")
+    ap.add_argument("--max-refits", type=int, default=2,
+                    help="most twin-corrected refits per dataset [refits] "
+                    "(default %(default)s)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel twin runs [processes] (default %(default)s)")
     a = ap.parse_args(argv)
     loops, dsets, out = Path(a.loops), Path(a.datasets), Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -45,15 +45,20 @@ def table_from_sweep(configs, sweep_table):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--seed", type=int, default=0, help="first seed; replicates use seed + k")
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.studies.surrogate_runs "
+                                "--workers 2 --seed 0 --replicates 3")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="first seed; replicates use seed + k [-] (default %(default)s)")
     p.add_argument("--replicates", type=int, default=3,
                    help="seeded runs (start positions) per design point; the point's value is "
-                        "their mean")
+                        "their mean [seeds] (default %(default)s)")
     p.add_argument("--validation-replicates", type=int, default=3,
                    help="start positions per validation case; the case's value is their mean "
-                        "(one chaotic run scatters by ~1 %%, as much as the errors compared)")
+                        "(one chaotic run scatters by ~1 %%, as much as the errors compared) "
+                        "[seeds] (default %(default)s)")
     a = p.parse_args(argv)
     if a.replicates < 1 or a.validation_replicates < 1:
         p.error("--replicates and --validation-replicates must be >= 1")

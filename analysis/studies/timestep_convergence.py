@@ -32,9 +32,14 @@ def restitution_config(dt, v):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seeds", type=int, default=3)
-    p.add_argument("--workers", type=int, default=2)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.studies.timestep_convergence "
+                                "--seeds 3 --workers 2")
+    p.add_argument("--seeds", type=int, default=3,
+                   help="start positions per time step in the mill runs [seeds] "
+                   "(default %(default)s)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel twin runs [processes] (default %(default)s)")
     a = p.parse_args(argv)
     from analysis.sweep import run_sweep
     rcfg = [restitution_config(dt, v) for dt in DTS for v in SPEEDS]
