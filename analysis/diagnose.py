@@ -95,7 +95,7 @@ from analysis.atomic_dir import publish_dir, staging_dir
 from scipy import optimize, stats
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
-                                   Dataset, measurement_table)
+                                   Dataset, measurement_table, yield_table)
 
 EFFECT_KINDS = ("dem", "kinetics")
 #: strengths scanned (evenly over each effect's range) for the fit's starting points
@@ -291,14 +291,12 @@ def observations_from_dataset(dataset: Dataset, v_rel_sd=DEFAULT_V_REL_SD,
     obs = measurement_table(dataset, v_rel_sd=v_rel_sd, f_col_sd_hz=f_col_sd_hz)
     obs = obs[["condition_id", "observable", "value", "sd"]]
     if dataset.yields is not None:
-        y = dataset.yields
-        sd = (y["yield_sd_pct"].to_numpy(float) if "yield_sd_pct" in y.columns
-              else np.full(len(y), np.nan))
+        y = yield_table(dataset, yield_sd_pct=yield_sd_pct)
         obs = pd.concat([obs, pd.DataFrame({
             "condition_id": y["condition_id"].to_numpy(),
             "observable": ["yield_pct@%gmin" % t for t in y["time_min"]],
-            "value": y["yield_pct"].to_numpy(float),
-            "sd": np.where(np.isfinite(sd), sd, yield_sd_pct)})], ignore_index=True)
+            "value": y["value"].to_numpy(float), "sd": y["sd"].to_numpy(float)})],
+            ignore_index=True)
     return obs
 
 

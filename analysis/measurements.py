@@ -16,14 +16,22 @@ tracks/<condition_id>.csv   t_s, x_m, y_m (camera plane, x along the jar axis)  
                             [jar_x_m: the jar's x in the same frames, for the
                             impact observables of analysis.flights]
 videos/<condition_id>.*     + videos/video.json: fps, ball_diameter_px or m_per_px  no
-yields.csv                  condition_id, time_min, yield_pct [phase]              no
+yields.csv                  condition_id, time_min, yield_pct                      no
+                            [yield_sd_pct, phase: powder | wax | complete]
 ==========================  =====================================================  ========
 
 Units sit in the column names. Unknown columns are kept and ignored. Any violation of the
 contract (missing required column, a column carrying the wrong unit such as ``v_mean_mm_s`` or
 ``frequency_rpm``, an empty or non-numeric or NaN cell in a required column, a negative
-frequency, a duplicate or unknown ``condition_id``) raises ONE :class:`DatasetError` that names
-the file, the row and the column.
+frequency, a duplicate or unknown ``condition_id``, a yield outside [0, 100] %) raises ONE
+:class:`DatasetError` that names the file, the row and the column. yields.csv rows may come in
+any order and a ``phase`` cell is kept as read; the yield-data tools (:mod:`analysis.yield_data`)
+are stricter (times non-decreasing within a condition, phase one of powder / wax / complete).
+
+This module is the one parser of the dataset files: :mod:`analysis.yield_data` reads
+conditions.csv and yields.csv through :func:`read_table`, :func:`validate_conditions_table` and
+:func:`validate_yields_table`, and only presents the result (its own row numbering, phase
+labels normalised, pandas column types).
 
 Row numbers in messages count data rows from 1; the file line is ``row + 1`` (line 1 is the
 header).
@@ -38,8 +46,8 @@ Empty sd cells are reported by :attr:`Dataset.missing_sd` and replaced in
   frame-to-frame scatter; 1.5 % is a deliberately modest figure.
 * ``f_col_sd_hz = 1.0``: one collision per second (the count over a 0.5 s record is an integer
   divided by the record length, +-2 /s; 1 /s is its standard uncertainty for a uniform rounding).
-* ``yield_sd_pct = 2.0``: two percentage points for yields (when yields.csv has no
-  ``yield_sd_pct`` column).
+* ``yield_sd_pct = 2.0``: two percentage points for yields (where yields.csv has no
+  ``yield_sd_pct`` column or an empty cell in it), applied by :func:`yield_table`.
 """
 from __future__ import annotations
 
@@ -69,6 +77,11 @@ SUMMARY_OBSERVABLES = {"v_mean_m_s": "v_mean_sd_m_s", "f_col_hz": "f_col_sd_hz"}
 
 VELOCITY_FRAMES = ("lab", "jar")
 
+#: labels of the optional yields.csv column ``phase`` (case and surrounding blanks ignored)
+PHASES = ("powder", "wax", "complete")
+#: phase cells that mean "no label" (empty, or a usual spelling of a missing value)
+_NO_LABEL = {"", "na", "n/a", "nan", "null", "none", "<na>", "#n/a"}
+
 # unit suffix tokens recognised when looking for a column that carries the wrong unit
 _UNIT_TOKENS = {
     "m", "mm", "cm", "um", "km", "in", "inch", "px", "m_s", "mm_s", "cm_s", "km_h", "m_min",
@@ -77,7 +90,8 @@ _UNIT_TOKENS = {
 }
 
 # required and optional columns: name -> (kind, rule); kind 'float', 'int', 'str'
-# rules: 'pos' (> 0), 'nonneg' (>= 0), 'any' (finite), 'pct' (0..100)
+# rules: 'pos' (> 0), 'nonneg' (>= 0), 'any' (finite), 'pct' (0..100), 'posint' (1, 2, ...),
+# 'id' (non-empty text), 'phase' (one of PHASES or no label; kept as read)
 _CONDITIONS_REQUIRED = {"condition_id": "id", "frequency_hz": "pos", "ball_diameter_mm": "pos"}
 _CONDITIONS_OPTIONAL = {"amplitude_mm": "pos", "n_balls": "posint", "fill_g": "nonneg"}
 _SUMMARY_REQUIRED = {"condition_id": "id", "v_mean_m_s": "nonneg", "f_col_hz": "nonneg"}
@@ -87,10 +101,13 @@ _TRACK_REQUIRED = {"t_s": "any", "x_m": "any", "y_m": "any"}
 #: analysis.flights needs for the impact observables
 _TRACK_OPTIONAL = {"jar_x_m": "any"}
 _YIELDS_REQUIRED = {"condition_id": "id", "time_min": "nonneg", "yield_pct": "pct"}
-_YIELDS_OPTIONAL = {"yield_sd_pct": "nonneg"}
+_YIELDS_OPTIONAL = {"yield_sd_pct": "nonneg", "phase": "phase"}
+#: every column of the conditions.csv and yields.csv contracts (required, then optional)
+CONDITIONS_COLUMNS = tuple(_CONDITIONS_REQUIRED) + tuple(_CONDITIONS_OPTIONAL)
+YIELDS_COLUMNS = tuple(_YIELDS_REQUIRED) + tuple(_YIELDS_OPTIONAL)
 
 _RULE_TEXT = {"pos": "must be > 0", "nonneg": "must be >= 0", "posint": "must be a positive integer",
-              "pct": "must lie in [0, 100]", "any": "must be finite"}
+              "pct": "is outside [0, 100] %", "any": "must be finite"}
 
 
 class DatasetError(ValueError):
@@ -229,9 +246,30 @@ def _parse_number(text, fname, row, col, rule, allow_empty):
            or (rule == "pct" and not 0.0 <= val <= 100.0)
            or (rule == "posint" and (val < 1 or val != int(val))))
     if bad:
-        what = "negative frequency " if col.startswith("frequency") and val < 0 else "value "
+        what = "value "
+        for noun in ("frequency", "time"):
+            if col.startswith(noun) and val < 0:
+                what = "negative %s " % noun
         raise DatasetError("%s: %s%g %s" % (_where(fname, row, col), what, val, _RULE_TEXT[rule]))
     return val
+
+
+def phase_label(cell):
+    """The phase label of a yields.csv ``phase`` cell: one of :data:`PHASES` (case and blanks
+    ignored), or None for an empty cell or a missing-value spelling (NA, nan, ...).
+
+    Raises
+    ------
+    ValueError : any other text
+    """
+    if cell is None or (isinstance(cell, float) and math.isnan(cell)) or cell is pd.NA:
+        return None
+    s = str(cell).strip().lower()
+    if s in _NO_LABEL:
+        return None
+    if s not in PHASES:
+        raise ValueError(cell)
+    return s
 
 
 def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids=None,
@@ -266,8 +304,9 @@ def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids
                     raise DatasetError("%s: empty condition_id" % _where(fname, i, col))
                 if unique_ids:
                     if s in seen:
-                        raise DatasetError("%s: duplicate condition_id %r (first at row %d)"
-                                           % (_where(fname, i, col), s, seen[s]))
+                        raise DatasetError(
+                            "%s: duplicate condition_id %r, first at row %d (line %d)"
+                            % (_where(fname, i, col), s, seen[s], seen[s] + 1))
                     seen[s] = i
                 if known_ids is not None and s not in known_ids:
                     raise DatasetError("%s: unknown condition_id %r (not in conditions.csv)"
@@ -275,6 +314,17 @@ def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids
                 vals.append(s)
             out[col] = vals
             continue
+        if rule == "text":
+            continue                       # kept as read, unchecked
+        if rule == "phase":
+            for i, v in enumerate(df[col], start=1):
+                try:
+                    phase_label(v)
+                except ValueError:
+                    raise DatasetError("%s: phase %r is not one of %s (or empty)"
+                                       % (_where(fname, i, col), str(v).strip(), ", ".join(PHASES))
+                                       ) from None
+            continue                       # kept as read
         vals = [_parse_number(v, fname, i, col, rule, allow_empty)
                 for i, v in enumerate(df[col], start=1)]
         out[col] = np.asarray(vals, dtype=float)
@@ -283,8 +333,23 @@ def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids
     return out
 
 
-def _read_csv(path, fname):
-    """Read a CSV as strings; every row must have as many fields as the header."""
+def read_table(path, fname=None):
+    """Read a dataset CSV as strings; every row must have as many fields as the header.
+
+    Parameters
+    ----------
+    path : str or Path
+    fname : str, optional - the name used in messages (default: ``path``)
+
+    Returns
+    -------
+    DataFrame of str (empty cells are ''), header names stripped
+
+    Raises
+    ------
+    DatasetError : file missing, not text, or a row with the wrong number of fields
+    """
+    fname = str(path) if fname is None else fname
     try:
         with open(path, newline="") as fh:
             rows = list(csv.reader(fh, skipinitialspace=True))
@@ -301,6 +366,19 @@ def _read_csv(path, fname):
             raise DatasetError("%s: malformed CSV (%d fields, the header has %d)"
                                % (_where(fname, i), len(r), len(header)))
     return pd.DataFrame(rows[1:], columns=header, dtype=str)
+
+
+def read_json(path, fname=None):
+    """The object in a JSON file (dataset.json, videos/video.json); DatasetError naming ``fname``
+    (default ``path``) when the file is missing or malformed."""
+    fname = str(path) if fname is None else fname
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except FileNotFoundError:
+        raise DatasetError("%s: file is missing" % fname) from None
+    except json.JSONDecodeError as exc:
+        raise DatasetError("%s: malformed JSON (%s)" % (fname, exc)) from None
 
 
 def _validate_meta(meta, fname="dataset.json"):
@@ -368,6 +446,61 @@ def _check_plausible(df, fname):
                                % (_where(fname, i + 1, col), v[i], col, top, hint))
 
 
+def validate_conditions_table(df, fname="conditions.csv") -> pd.DataFrame:
+    """Validate a conditions table (the contract of conditions.csv); return a normalised copy.
+
+    Parameters
+    ----------
+    df : DataFrame - cells as strings (as read by :func:`read_table`) or numbers
+    fname : str - the file name used in messages
+
+    Returns
+    -------
+    DataFrame, shape (n_conditions, >= 3) - condition_id (str), frequency_hz and
+    ball_diameter_mm (float) [, amplitude_mm, fill_g (float), n_balls (int)]; other columns as
+    strings. Raises :class:`DatasetError`.
+    """
+    cond = _validate_table(_as_str(df), fname, _CONDITIONS_REQUIRED, _CONDITIONS_OPTIONAL,
+                           unique_ids=True)
+    _check_plausible(cond, fname)
+    return cond
+
+
+def validate_yields_table(df, condition_ids, fname="yields.csv", strict=False) -> pd.DataFrame:
+    """Validate a yields table (the contract of yields.csv) against the known condition ids;
+    return a normalised copy.
+
+    Parameters
+    ----------
+    df : DataFrame - cells as strings (as read by :func:`read_table`) or numbers
+    condition_ids : iterable of str - the ids of conditions.csv
+    fname : str - the file name used in messages
+
+    Returns
+    -------
+    DataFrame, shape (n_samples, >= 3) - condition_id (str), time_min, yield_pct [,
+    yield_sd_pct] (float, NaN for an empty sd); phase and other columns as strings. Raises
+    :class:`DatasetError` on the cell rules; with ``strict`` (the yield-data tools,
+    :mod:`analysis.yield_data`) also on times that decrease within a condition (equal times are
+    replicates) and on phase labels other than :data:`PHASES`. The dataset contract
+    (:func:`load_dataset`) is not strict: rows in any order, the phase kept as read.
+    """
+    optional = _YIELDS_OPTIONAL if strict else dict(_YIELDS_OPTIONAL, phase="text")
+    out = _validate_table(_as_str(df), fname, _YIELDS_REQUIRED, optional,
+                          known_ids=set(condition_ids))
+    if not strict:
+        return out
+    for cid, grp in out.groupby("condition_id", sort=False):
+        tt = grp["time_min"].to_numpy()
+        dec = np.flatnonzero(np.diff(tt) < 0)
+        if dec.size:
+            row = int(grp.index[dec[0] + 1]) + 1
+            raise DatasetError("%s: times out of order for condition %r (%g then %g)"
+                               % (_where(fname, row, "time_min"), cid, tt[dec[0]],
+                                  tt[dec[0] + 1]))
+    return out
+
+
 def validate(dataset: Dataset) -> Dataset:
     """Validate an in-memory :class:`Dataset` against the contract; return a normalised copy.
 
@@ -378,12 +511,10 @@ def validate(dataset: Dataset) -> Dataset:
     meta.update(name=dataset.name, description=dataset.description, source=dataset.source,
                 velocity_frame=dataset.velocity_frame)
     _validate_meta(meta)
-    cond = _validate_table(_as_str(dataset.conditions), "conditions.csv", _CONDITIONS_REQUIRED,
-                           _CONDITIONS_OPTIONAL, unique_ids=True)
+    cond = validate_conditions_table(dataset.conditions)
     ids = set(cond["condition_id"])
     summ = _validate_table(_as_str(dataset.summary), "summary.csv", _SUMMARY_REQUIRED,
                            empty_ok=_SUMMARY_SD, known_ids=ids, unique_ids=True)
-    _check_plausible(cond, "conditions.csv")
     _check_plausible(summ, "summary.csv")
     tracks = {}
     for cid, tr in dataset.tracks.items():
@@ -401,8 +532,7 @@ def validate(dataset: Dataset) -> Dataset:
         raise DatasetError("videos/video.json: file is missing (videos need fps and a scale)")
     yields = None
     if dataset.yields is not None:
-        yields = _validate_table(_as_str(dataset.yields), "yields.csv", _YIELDS_REQUIRED,
-                                 _YIELDS_OPTIONAL, known_ids=ids)
+        yields = validate_yields_table(dataset.yields, ids)
     return Dataset(name=meta["name"], description=meta["description"], source=meta["source"],
                    velocity_frame=meta["velocity_frame"], conditions=cond, summary=summ,
                    tracks=tracks, video=dataset.video, video_files=dict(dataset.video_files),
@@ -412,16 +542,17 @@ def validate(dataset: Dataset) -> Dataset:
 def _as_str(df):
     """Frame of strings (NaN -> ''), the form read from disk, so both paths validate alike."""
     out = pd.DataFrame(index=range(len(df)))
-    for col in df.columns:
+    for j in range(df.shape[1]):           # by position: a repeated column name stays visible
         vals = []
-        for v in df[col].tolist():
+        for v in df.iloc[:, j].tolist():
             if v is None or (isinstance(v, float) and math.isnan(v)):
                 vals.append("")
             elif isinstance(v, float):
                 vals.append(repr(v))
             else:
                 vals.append(str(v))
-        out[col] = vals
+        out[j] = vals
+    out.columns = list(df.columns)
     return out
 
 
@@ -447,29 +578,19 @@ def load_dataset(path) -> Dataset:
     path = Path(path)
     if not path.is_dir():
         raise DatasetError("%s: dataset folder not found" % path)
-    try:
-        with open(path / "dataset.json") as fh:
-            meta = json.load(fh)
-    except FileNotFoundError:
-        raise DatasetError("%s: file is missing" % (path / "dataset.json")) from None
-    except json.JSONDecodeError as exc:
-        raise DatasetError("%s: malformed JSON (%s)" % (path / "dataset.json", exc)) from None
+    meta = read_json(path / "dataset.json")
     _validate_meta(meta, str(path / "dataset.json"))
-    raw = {"conditions": _read_csv(path / "conditions.csv", str(path / "conditions.csv")),
-           "summary": _read_csv(path / "summary.csv", str(path / "summary.csv"))}
+    raw = {"conditions": read_table(path / "conditions.csv", str(path / "conditions.csv")),
+           "summary": read_table(path / "summary.csv", str(path / "summary.csv"))}
     tracks = {}
     if (path / "tracks").is_dir():
         for f in sorted((path / "tracks").glob("*.csv")):
-            tracks[f.stem] = _read_csv(f, str(f))
+            tracks[f.stem] = read_table(f, str(f))
     video, video_files = None, {}
     vdir = path / "videos"
     if vdir.is_dir():
         if (vdir / "video.json").exists():
-            try:
-                with open(vdir / "video.json") as fh:
-                    video = json.load(fh)
-            except json.JSONDecodeError as exc:
-                raise DatasetError("%s: malformed JSON (%s)" % (vdir / "video.json", exc)) from None
+            video = read_json(vdir / "video.json")
         for f in sorted(vdir.iterdir()):
             if f.name != "video.json" and f.is_file():
                 if f.stem in video_files:
@@ -477,7 +598,7 @@ def load_dataset(path) -> Dataset:
                 video_files[f.stem] = f
     yields = None
     if (path / "yields.csv").exists():
-        yields = _read_csv(path / "yields.csv", str(path / "yields.csv"))
+        yields = read_table(path / "yields.csv", str(path / "yields.csv"))
     ds = Dataset(name=meta["name"], description=meta["description"], source=meta["source"],
                  velocity_frame=meta["velocity_frame"], conditions=raw["conditions"],
                  summary=raw["summary"], tracks=tracks, video=video, video_files=video_files,
@@ -564,6 +685,36 @@ def measurement_table(dataset: Dataset, v_rel_sd: float = DEFAULT_V_REL_SD,
                 sd = v_rel_sd * r[obs] if obs == "v_mean_m_s" else f_col_sd_hz
             rows.append((r["condition_id"], obs, float(r[obs]), float(sd), bool(default)))
     return pd.DataFrame(rows, columns=["condition_id", "observable", "value", "sd", "sd_default"])
+
+
+def yield_table(dataset: Dataset, yield_sd_pct: float = DEFAULT_YIELD_SD_PCT) -> pd.DataFrame:
+    """The yields of a dataset with their standard uncertainties.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    yield_sd_pct : float
+        sd used where yields.csv has no yield_sd_pct column or an empty cell in it [percentage
+        points] (default 2.0)
+
+    Returns
+    -------
+    DataFrame, shape (n_yields, 5)
+        condition_id, time_min, value (yield_pct), sd, sd_default (bool), in file order; no rows
+        when the dataset has no yields.csv
+    """
+    cols = ["condition_id", "time_min", "value", "sd", "sd_default"]
+    y = dataset.yields
+    if y is None:
+        return pd.DataFrame(columns=cols)
+    sd = (y["yield_sd_pct"].to_numpy(float) if "yield_sd_pct" in y.columns
+          else np.full(len(y), np.nan))
+    default = ~np.isfinite(sd)
+    return pd.DataFrame({"condition_id": y["condition_id"].to_numpy(),
+                         "time_min": y["time_min"].to_numpy(float),
+                         "value": y["yield_pct"].to_numpy(float),
+                         "sd": np.where(default, yield_sd_pct, sd), "sd_default": default},
+                        columns=cols)
 
 
 def main(argv=None):

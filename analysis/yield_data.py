@@ -4,9 +4,17 @@ Loader
 ------
 A measurement dataset (DESIGN.md) ``data/measurements/<name>/`` holds ``dataset.json``,
 ``conditions.csv`` (condition_id, frequency_hz, ball_diameter_mm, ...) and ``yields.csv``
-(condition_id, time_min, yield_pct, optional phase). :func:`load_yield_dataset` reads and checks
-them; any problem raises :class:`YieldDataError` naming the file, row (1-based line number in the
-file, header = line 1) and column.
+(condition_id, time_min, yield_pct, optional yield_sd_pct and phase). :func:`load_yield_dataset`
+reads them; any problem raises :class:`YieldDataError` naming the file, row (1-based line number
+in the file, header = line 1) and column.
+
+The loader is a view: the contract of conditions.csv and yields.csv (columns, units, numeric
+rules, ordering, phase labels) is declared once, in :mod:`analysis.measurements`, which reads and
+validates both files (:func:`analysis.measurements.read_table`,
+:func:`~analysis.measurements.validate_conditions_table`,
+:func:`~analysis.measurements.validate_yields_table`). This module only presents the result:
+its row numbers are file lines, phase labels are lower case or NA, columns outside the contract
+get pandas' CSV types, and dataset.json needs only ``name`` (no summary.csv is needed).
 
 Synthetic generator
 -------------------
@@ -51,7 +59,9 @@ CLI::
 from __future__ import annotations
 
 import argparse
+import io
 import json
+import re
 import shutil
 import sys
 from dataclasses import asdict, dataclass, field
@@ -62,12 +72,13 @@ import pandas as pd
 
 from analysis import config
 from analysis import kinetics
+from analysis import measurements
 
 SYNTHETIC_DATASET_NAME = "synthetic_yields_paper"
 SYNTHETIC_DATASET_DIR = config.MEASUREMENTS_DIR / SYNTHETIC_DATASET_NAME
 #: how a generated dataset's dataset.json names its writer ("source")
 GENERATOR_SOURCE = "analysis.yield_data.generate_synthetic_yields"
-PHASES = ("powder", "wax", "complete")
+PHASES = measurements.PHASES
 
 #: sampling times [min] per frequency [Hz] of the synthetic design (see module docstring)
 DEFAULT_SCHEDULE_MIN = {
@@ -77,8 +88,11 @@ DEFAULT_SCHEDULE_MIN = {
 }
 
 
-class YieldDataError(ValueError):
-    """Malformed yield dataset; the message names file, row and column."""
+class YieldDataError(measurements.DatasetError):
+    """Malformed yield dataset; the message names file, row (the file line) and column.
+
+    A :class:`analysis.measurements.DatasetError` (so a ValueError) raised by the shared contract
+    and restated with this module's row numbers."""
 
 
 @dataclass
@@ -108,108 +122,84 @@ class YieldDataset:
 # --------------------------------------------------------------------------------------------
 # loader
 # --------------------------------------------------------------------------------------------
-def _read_csv(path: Path) -> pd.DataFrame:
-    if not path.is_file():
-        raise YieldDataError(f"{path}: file not found")
+_ROW_LINE = re.compile(r"\brow (\d+) \(line (\d+)\)")
+
+
+def _file_lines(message: str) -> str:
+    """``message`` of the shared contract with this module's row numbers: 'row 5 (line 6)' (data
+    row and file line) becomes 'row 6' (the file line)."""
+    return _ROW_LINE.sub(lambda m: "row " + m.group(2), message)
+
+
+def _shared(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` of :mod:`analysis.measurements`; its DatasetError as a
+    YieldDataError."""
     try:
-        df = pd.read_csv(path, dtype={"condition_id": str})
-    except Exception as exc:
-        raise YieldDataError(f"{path}: cannot parse CSV ({exc})") from exc
-    df.columns = [str(c).strip() for c in df.columns]
-    return df
+        return fn(*args, **kwargs)
+    except YieldDataError:
+        raise
+    except measurements.DatasetError as exc:
+        raise YieldDataError(_file_lines(str(exc))) from None
 
 
-def _require(df: pd.DataFrame, path: Path, cols) -> None:
-    for col in cols:
-        if col not in df.columns:
-            raise YieldDataError(f"{path}: missing column '{col}' (have {list(df.columns)})")
+def _pandas_types(table: pd.DataFrame, contract) -> pd.DataFrame:
+    """``table`` with its columns outside the contract (read as text) typed as
+    ``pandas.read_csv`` types them (numbers, NaN for empty cells): the types this module has
+    always given them (e.g. the generator's e_tot_j_true)."""
+    extra = [c for c in table.columns if c not in contract]
+    if not extra:
+        return table
+    typed = pd.read_csv(io.StringIO(table[extra].to_csv(index=False)))
+    out = table.copy()
+    for col in extra:
+        out[col] = typed[col].to_numpy()
+    return out
 
 
-def _numeric(df: pd.DataFrame, path: Path, col: str) -> np.ndarray:
-    vals = pd.to_numeric(df[col], errors="coerce").to_numpy(float)
-    bad = np.flatnonzero(~np.isfinite(vals))
-    if bad.size:
-        raw = df[col].iloc[bad[0]]
-        raise YieldDataError(f"{path}: row {bad[0] + 2}, column '{col}': missing or not a number "
-                             f"({raw!r})")
-    return vals
+def _view(checked: pd.DataFrame, given: pd.DataFrame, contract) -> pd.DataFrame:
+    """``given`` with the contract's columns replaced by the validated ``checked`` ones."""
+    out = given.copy()
+    for col in contract:
+        if col in checked.columns:
+            out[col] = checked[col].to_numpy()
+    return out
 
 
 def validate_conditions(df: pd.DataFrame, path: Path) -> pd.DataFrame:
-    """Check a conditions table; returns a cleaned copy (numeric columns as float)."""
-    _require(df, path, ["condition_id", "frequency_hz", "ball_diameter_mm"])
-    df = df.copy()
-    ids = df["condition_id"]
-    if ids.isna().any():
-        raise YieldDataError(f"{path}: row {int(np.flatnonzero(ids.isna())[0]) + 2}, column "
-                             "'condition_id': empty")
-    df["condition_id"] = ids.astype(str).str.strip()
-    dup = df["condition_id"].duplicated()
-    if dup.any():
-        i = int(np.flatnonzero(dup)[0])
-        raise YieldDataError(f"{path}: row {i + 2}, column 'condition_id': duplicate "
-                             f"'{df['condition_id'].iloc[i]}'")
-    for col in ("frequency_hz", "ball_diameter_mm"):
-        v = _numeric(df, path, col)
-        if np.any(v <= 0):
-            i = int(np.flatnonzero(v <= 0)[0])
-            raise YieldDataError(f"{path}: row {i + 2}, column '{col}': must be > 0, got {v[i]}")
-        df[col] = v
-    return df
+    """Check a conditions table; returns a cleaned copy (numeric columns as float).
+
+    The contract is :func:`analysis.measurements.validate_conditions_table` (required
+    condition_id, frequency_hz, ball_diameter_mm; optional amplitude_mm, n_balls, fill_g; units;
+    positive and plausible values; unique ids). Columns outside it are returned as given.
+    Raises :class:`YieldDataError`.
+    """
+    checked = _shared(measurements.validate_conditions_table, df, str(path))
+    return _view(checked, df, measurements.CONDITIONS_COLUMNS)
 
 
 def validate_yields(df: pd.DataFrame, path: Path, condition_ids) -> pd.DataFrame:
     """Check a yields table against the known condition ids; returns a cleaned copy.
 
-    Errors: missing column, NaN / non-numeric, negative time, times decreasing within a
-    condition (equal times = replicates are allowed), yield < 0 or > 100 %, unknown condition,
-    phase not one of powder / wax / complete.
+    Errors (:func:`analysis.measurements.validate_yields_table`): missing column or wrong unit,
+    empty / NaN / non-numeric cell, negative time, times decreasing within a condition (equal
+    times = replicates are allowed), yield < 0 or > 100 %, negative yield_sd_pct, unknown
+    condition, phase not one of powder / wax / complete. The phase column is returned lower
+    case, NA where empty; other columns outside the contract as given.
     """
-    _require(df, path, ["condition_id", "time_min", "yield_pct"])
-    df = df.copy()
-    if df.empty:
-        raise YieldDataError(f"{path}: no rows")
-    ids = df["condition_id"]
-    if ids.isna().any():
-        raise YieldDataError(f"{path}: row {int(np.flatnonzero(ids.isna())[0]) + 2}, column "
-                             "'condition_id': empty")
-    df["condition_id"] = ids.astype(str).str.strip()
-    known = set(condition_ids)
-    unknown = ~df["condition_id"].isin(known)
-    if unknown.any():
-        i = int(np.flatnonzero(unknown)[0])
-        raise YieldDataError(f"{path}: row {i + 2}, column 'condition_id': unknown condition "
-                             f"'{df['condition_id'].iloc[i]}' (not in conditions.csv)")
-    t = _numeric(df, path, "time_min")
-    x = _numeric(df, path, "yield_pct")
-    if np.any(t < 0):
-        i = int(np.flatnonzero(t < 0)[0])
-        raise YieldDataError(f"{path}: row {i + 2}, column 'time_min': negative time {t[i]}")
-    bad = (x < 0) | (x > 100)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise YieldDataError(f"{path}: row {i + 2}, column 'yield_pct': {x[i]} outside [0, 100] %")
-    df["time_min"], df["yield_pct"] = t, x
-    for cid, grp in df.groupby("condition_id", sort=False):
-        tt = grp["time_min"].to_numpy()
-        dec = np.flatnonzero(np.diff(tt) < 0)
-        if dec.size:
-            i = int(grp.index[dec[0] + 1])
-            raise YieldDataError(f"{path}: row {i + 2}, column 'time_min': times out of order for "
-                                 f"condition '{cid}' ({tt[dec[0]]} then {tt[dec[0] + 1]})")
-    if "phase" in df.columns:
-        ph = df["phase"].astype("string").str.strip().str.lower()
-        bad = ph.notna() & (ph != "") & ~ph.isin(PHASES)
-        if bad.any():
-            i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise YieldDataError(f"{path}: row {i + 2}, column 'phase': '{df['phase'].iloc[i]}' "
-                                 f"is not one of {PHASES}")
-        df["phase"] = ph.where(ph.notna() & (ph != ""), pd.NA)
-    return df
+    checked = _shared(measurements.validate_yields_table, df, condition_ids, str(path),
+                      strict=True)
+    out = _view(checked, df, measurements.YIELDS_COLUMNS)
+    if "phase" in out.columns:
+        out["phase"] = pd.Series([measurements.phase_label(v) for v in checked["phase"]],
+                                 index=out.index, dtype="string")
+    return out
 
 
 def load_yield_dataset(path) -> YieldDataset:
     """Load and validate ``<path>/dataset.json``, ``conditions.csv`` and ``yields.csv``.
+
+    The files are read and checked by :mod:`analysis.measurements` (the one declaration of the
+    dataset contract); this returns that view of them (see the module doc).
 
     Raises
     ------
@@ -218,19 +208,16 @@ def load_yield_dataset(path) -> YieldDataset:
     path = Path(path)
     if not path.is_dir():
         raise YieldDataError(f"{path}: dataset folder not found")
-    meta_path = path / "dataset.json"
-    if not meta_path.is_file():
-        raise YieldDataError(f"{meta_path}: file not found")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise YieldDataError(f"{meta_path}: invalid JSON ({exc})") from exc
+    meta = _shared(measurements.read_json, path / "dataset.json")
     if not isinstance(meta, dict) or "name" not in meta:
-        raise YieldDataError(f"{meta_path}: missing field 'name'")
-    cond = validate_conditions(_read_csv(path / "conditions.csv"), path / "conditions.csv")
-    yields = validate_yields(_read_csv(path / "yields.csv"), path / "yields.csv",
-                             cond["condition_id"])
-    return YieldDataset(name=str(meta["name"]), meta=meta, conditions=cond, yields=yields, path=path)
+        raise YieldDataError(f"{path / 'dataset.json'}: missing field 'name'")
+    cond = validate_conditions(_shared(measurements.read_table, path / "conditions.csv"),
+                               path / "conditions.csv")
+    yields = validate_yields(_shared(measurements.read_table, path / "yields.csv"),
+                             path / "yields.csv", cond["condition_id"])
+    return YieldDataset(name=str(meta["name"]), meta=meta,
+                        conditions=_pandas_types(cond, measurements.CONDITIONS_COLUMNS),
+                        yields=_pandas_types(yields, measurements.YIELDS_COLUMNS), path=path)
 
 
 # --------------------------------------------------------------------------------------------
