@@ -24,8 +24,11 @@ import pandas as pd
 from analysis.config import RESULTS_DIR
 
 CAL = RESULTS_DIR / "apparatus" / "identify_paper_dem"
-#: goals of the identification (issue "a twin of the real mill"): twin vs the target column
+#: goals (issue "a twin of the real mill"): twin vs the target column - the paper's DEM column
+#: at its contact parameters (identification), the measured column once calibrated (the paper's
+#: own DEM reaches 0.93 % / 4.84 % there)
 GOAL_MEAN_PCT, GOAL_MAX_PCT = 1.5, 3.0
+GOAL_MEASURED_MEAN_PCT, GOAL_MEASURED_MAX_PCT = 0.9, 3.0
 
 
 def load(cal_dir):
@@ -90,8 +93,10 @@ def write(cal_dir, params, comp, samples, summary, base, profile=None):
         lines.append("| %s | %.3f | %.3f | %.3f | %+.2f |"
                      % (r.condition_id, r.v_mean_measured_m_s, r.v_mean_twin_m_s,
                         r.v_mean_twin_sd_m_s, r.diff_pct))
+    g_mean, g_max = ((GOAL_MEAN_PCT, GOAL_MAX_PCT) if "dem" in str(summary.get("dataset", ""))
+                     else (GOAL_MEASURED_MEAN_PCT, GOAL_MEASURED_MAX_PCT))
     lines += ["", "mean |diff| %.2f %%, max %.2f %% (goal <= %.1f %% and <= %.1f %%)."
-              % (mean_abs, max_abs, GOAL_MEAN_PCT, GOAL_MAX_PCT), "",
+              % (mean_abs, max_abs, g_mean, g_max), "",
               "Shape: v/f [mm] 17.5 mm ball %.1f (target %.1f), 20.6 mm ball %.1f (%.1f); "
               "split %+.1f %% (%+.1f %%); 22.5 -> 30 Hz change of v/f %+.1f %% (%+.1f %%) and "
               "%+.1f %% (%+.1f %%)."
