@@ -94,27 +94,12 @@ def load_measurements(dataset_dir=PAPER_TABLE3_DIR):
     MeasurementError (analysis.measurements.DatasetError) naming the file, row and column of
     a missing or bad value, or a condition without a summary row.
     """
+    from analysis.measurements import summary_wide
     ds = load_dataset(dataset_dir)
-    cond = ds.conditions.copy()
-    for c in ("frequency_hz", "ball_diameter_mm"):
-        cond[c] = pd.to_numeric(cond[c]).astype(float)
-    summ = ds.summary.copy()
-    for c in summ.columns:          # unknown columns come as strings; keep numbers numeric
-        if c != "condition_id":
-            num = pd.to_numeric(summ[c], errors="coerce")
-            if num.notna().sum() == summ[c].replace("", np.nan).notna().sum():
-                summ[c] = num.astype(float)
-    missing = sorted(set(cond["condition_id"]) - set(summ["condition_id"]))
-    if missing:
-        raise MeasurementError("%s: no summary.csv row for condition(s) %s"
-                               % (dataset_dir, ", ".join(missing)))
-    summ = summ.drop(columns=[c for c in summ.columns if c in cond.columns
-                              and c != "condition_id"])
-    df = cond.merge(summ, on="condition_id", how="left")
-    df["ball_diameter_m"] = df["ball_diameter_mm"] / 1000.0
-    df.attrs["velocity_frame"] = ds.velocity_frame
-    df.attrs["name"] = ds.name
-    return df
+    try:
+        return summary_wide(ds)
+    except MeasurementError as exc:
+        raise MeasurementError(str(exc).replace(ds.name, str(dataset_dir), 1)) from None
 
 
 def observe(table, velocity_frame="lab", operator="auto"):

@@ -37,12 +37,8 @@ from analysis.config import (DEMO_DIR, MEASURED_APPARATUS_PROFILE, PAPER_APPARAT
 
 def measured_table(dataset_dir=PAPER_TABLE3_DIR):
     """Table 3 as one frame: condition_id, frequency_hz, ball_diameter_mm, measured columns."""
-    from analysis.measurements import load_dataset
-    ds = load_dataset(dataset_dir)
-    t = ds.conditions.merge(ds.summary, on="condition_id")
-    if "v_mean_dem_paper_m_s" in t:  # an extra column of this dataset: the loader keeps it as text
-        t["v_mean_dem_paper_m_s"] = pd.to_numeric(t["v_mean_dem_paper_m_s"], errors="coerce")
-    return t
+    from analysis.measurements import load_dataset, summary_wide
+    return summary_wide(load_dataset(dataset_dir))
 
 
 def demo_configs(conditions, replicates, record_s, base=None):

@@ -659,6 +659,43 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
     return path
 
 
+def summary_wide(dataset: Dataset) -> pd.DataFrame:
+    """One row per condition: conditions.csv joined with summary.csv (calibration, the demo).
+
+    Returns
+    -------
+    DataFrame, shape (n_conditions, ...) - condition_id, frequency_hz, ball_diameter_mm,
+    ball_diameter_m, the optional condition columns, v_mean_m_s, v_mean_sd_m_s (NaN if not
+    given), f_col_hz, f_col_sd_hz, and any other summary column (numeric where every filled cell
+    is a number, e.g. the paper's ``v_mean_dem_paper_m_s``); ``attrs`` 'velocity_frame' and
+    'name'.
+
+    Raises
+    ------
+    DatasetError - a condition without a summary row
+    """
+    cond = dataset.conditions.copy()
+    for c in ("frequency_hz", "ball_diameter_mm"):
+        cond[c] = pd.to_numeric(cond[c]).astype(float)
+    summ = dataset.summary.copy()
+    for c in summ.columns:          # unknown columns come as strings; keep numbers numeric
+        if c != "condition_id":
+            num = pd.to_numeric(summ[c], errors="coerce")
+            if num.notna().sum() == summ[c].replace("", np.nan).notna().sum():
+                summ[c] = num.astype(float)
+    missing = sorted(set(cond["condition_id"]) - set(summ["condition_id"]))
+    if missing:
+        raise DatasetError("%s: no summary.csv row for condition(s) %s"
+                           % (dataset.name, ", ".join(missing)))
+    summ = summ.drop(columns=[c for c in summ.columns if c in cond.columns
+                              and c != "condition_id"])
+    df = cond.merge(summ, on="condition_id", how="left")
+    df["ball_diameter_m"] = df["ball_diameter_mm"] / 1000.0
+    df.attrs["velocity_frame"] = dataset.velocity_frame
+    df.attrs["name"] = dataset.name
+    return df
+
+
 def measurement_table(dataset: Dataset, v_rel_sd: float = DEFAULT_V_REL_SD,
                       f_col_sd_hz: float = DEFAULT_F_COL_SD_HZ) -> pd.DataFrame:
     """Long table of the summary observables with their standard uncertainties.

@@ -40,11 +40,15 @@ def main(argv=None):
                    "(default %(default)s)")
     p.add_argument("--workers", type=int, default=2,
                    help="parallel twin runs [processes] (default %(default)s)")
+    p.add_argument("--frame", choices=("lab", "jar"), default="lab",
+                   help="frame of the mill runs (run config 'frame'; the restitution runs hold "
+                   "the jar at rest, where both frames are the same scene)")
     a = p.parse_args(argv)
     from analysis.sweep import run_sweep
     rcfg = [restitution_config(dt, v) for dt in DTS for v in SPEEDS]
-    mcfg = [dict(STUDY_PROTOCOL, frequency_hz=25.0, ball_diameter_m=0.0206, dt_s=dt, seed=s)
-            for dt in DTS for s in range(a.seeds)]
+    frame = {} if a.frame == "lab" else {"frame": a.frame}   # lab: the ids of earlier runs
+    mcfg = [dict(STUDY_PROTOCOL, frequency_hz=25.0, ball_diameter_m=0.0206, dt_s=dt, seed=s,
+                 **frame) for dt in DTS for s in range(a.seeds)]
     res = run_sweep(rcfg + mcfg, workers=a.workers)
     t = res.table
     rest = []
@@ -72,6 +76,7 @@ def main(argv=None):
         se = np.sqrt(out[c + "_se"] ** 2 + ref[c + "_se"] ** 2)
         out[c + "_diff_ok"] = (out[c + "_diff_pct"].abs() <= 0.5) | (
             (out[c + "_mean"] - ref[c + "_mean"]).abs() <= 2 * se)
+    out["frame"] = a.frame
     out["within_criterion"] = (out["e_max_diff_pct"] <= 0.5) & out["v_mean_m_s_diff_ok"] & \
         out["f_col_hz_diff_ok"]
     ok = out[out["within_criterion"]]
