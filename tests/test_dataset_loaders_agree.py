@@ -230,3 +230,23 @@ def test_malformed_conditions_same_error_both_paths(gen_dir):
                                      "negative frequency -27.5 must be > 0")
     assert str(ey.value) == fname + (", row 3, column 'frequency_hz': "
                                      "negative frequency -27.5 must be > 0")
+
+
+def test_summary_wide_is_the_one_wide_table_and_names_a_missing_summary_row(tmp_path):
+    """calibrate.load_measurements and demo.measured_table read the same table; a condition
+    without a summary row is one error naming the condition (and the folder, for calibrate)."""
+    import shutil
+    from analysis import calibrate, demo
+    from analysis.config import PAPER_TABLE3_DIR
+    a, b = demo.measured_table(), calibrate.load_measurements()
+    assert a.equals(b)
+    assert (a["ball_diameter_m"] == a["ball_diameter_mm"] / 1000.0).all()
+    assert a["v_mean_dem_paper_m_s"].dtype.kind == "f"
+    d = tmp_path / "ds"
+    shutil.copytree(PAPER_TABLE3_DIR, d)
+    lines = (d / "summary.csv").read_text().splitlines()
+    gone = lines[3].split(",")[0]
+    (d / "summary.csv").write_text("\n".join(lines[:3] + lines[4:]) + "\n")
+    with pytest.raises(m.DatasetError, match="no summary.csv row for condition.*%s" % gone) as e:
+        calibrate.load_measurements(d)
+    assert str(d) in str(e.value)
