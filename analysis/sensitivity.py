@@ -35,11 +35,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.calibrate import CALIBRATED
 from analysis.config import STUDIES_DIR
 
-#: Table 2 bounds of the contact parameters
-CONTACT_BOUNDS = {"restitution": (0.1, 0.7), "static_friction": (0.3, 0.7),
-                  "rolling_friction": (0.1, 0.5)}
+#: Table 2 bounds of the contact parameters (declared once: the calibration's priors)
+CONTACT_BOUNDS = {k: CALIBRATED[k] for k in ("restitution", "static_friction",
+                                             "rolling_friction")}
 #: default grid of the Figure-8 study (the paper does not list its levels)
 FIGURE8_LEVELS = {"restitution": (0.1, 0.3, 0.5, 0.7), "static_friction": (0.3, 0.5, 0.7),
                   "rolling_friction": (0.1, 0.3, 0.5)}
