@@ -232,7 +232,7 @@ class _ShiftedModel:
         return getattr(self._model, name)
 
 
-def _rerun_score(obs, pred, se, final, n_params) -> dict:
+def rerun_score(obs, pred, se, final, n_params) -> dict:
     """chi2 of the data against a twin rerun's means (the priors' pseudo-observations at the
     fit's values), sigma = hypot(measured sd, the rerun mean's se)."""
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
@@ -449,7 +449,7 @@ def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
     scale = {k: v if np.isfinite(v) and v > 0 else 1.0 for k, v in scale.items()}
     for it in range(max_refits + 1):
         pred, se, r = rerun_fn(dict(theta), dict(added))
-        rr = _rerun_score(obs, pred, se, final, nb + len(added))
+        rr = rerun_score(obs, pred, se, final, nb + len(added))
         runs.append(pd.DataFrame(r).assign(rerun=it + 1))
         rr["runs"] = pd.concat(runs, ignore_index=True)
         if it == max_refits:

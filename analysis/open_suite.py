@@ -81,7 +81,7 @@ def score(name, loop_info, diagnosis, staircase, truth) -> dict:
 DETECTABLE_CHI2 = 9.0
 
 
-def _first_model(dataset):
+def first_model(dataset):
     """The loop's first model from cached runs only (None when a run is missing), and its
     observations."""
     from analysis.loop import fit_observations
@@ -130,7 +130,7 @@ def detectable_chi2(dataset, truth) -> float:
     true = _true_dem(truth)
     if not true:
         return float("nan")
-    m, obs = _first_model(dataset)
+    m, obs = first_model(dataset)
     if m is None:
         return float("nan")
     return _leftover_chi2(m, obs, truth, true, {})
@@ -145,7 +145,7 @@ def detectable_each(dataset, truth) -> dict:
     true = _true_dem(truth)
     if not true:
         return {}
-    m, obs = _first_model(dataset)
+    m, obs = first_model(dataset)
     if m is None:
         return {}
     return {k: _leftover_chi2(m, obs, truth, true, {j: s for j, s in true.items() if j != k})
