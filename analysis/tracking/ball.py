@@ -8,7 +8,7 @@ frame the centre is refined to sub-pixel accuracy:
 
 * edge points: each row's outermost crossings (left, right) of a grey level half-way between
   background and ball (Otsu threshold), and each column's (top, bottom), linearly interpolated
-  between pixels. The default ('band', :class:`_BandRim`) reads them on short profiles across
+  between pixels. The default ('band', :class:`BandRim`) reads them on short profiles across
   the expected rim only, every 2nd row / column, all in one gather from precomputed offsets
   (~5x faster than a scan of the whole window, the earlier default 'crossings', which remains
   selectable and serves frames near the image border and re-acquisition; the scale frames read
@@ -33,18 +33,12 @@ the first frames of the ball's diameter in pixels, measured on the top and botto
 
 Output y_m points up (image rows run down): y_m = (height - 1 - y_px) * m_per_px.
 
-The jar (``--jar``, :func:`track_jar`): in a band of rows just inside the jar's bottom wall
-(found as the darker of the frame's two darkest rows, or given) the mean grey profile shows the
-two end walls as dark dips; each is followed by its darkness-weighted centroid (sub-pixel: 0.02
-px rms on the synthetic films), the jar's x is their mean, written as ``jar_x_m`` (zero-mean),
-which :mod:`analysis.flights` needs for the impact observables.
+The frames come from :mod:`analysis.tracking.video`; with ``jar=True`` :func:`track_video` also
+follows the jar (:mod:`analysis.tracking.jar`).
 """
 from __future__ import annotations
 
-import argparse
 import math
-import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,43 +46,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-
-class TrackingError(ValueError):
-    """Bad video or a ball that cannot be followed (message names the file)."""
-
-
-class VideoReadError(TrackingError):
-    """The video cannot be opened or holds no decodable frame."""
-
-
-class BallNotFoundError(TrackingError):
-    """The detector never found the ball."""
-
-
-class FpsMismatchError(TrackingError):
-    """A given frame rate disagrees with the one the video file declares.
-
-    Attributes
-    ----------
-    given_fps, declared_fps : float - the two frame rates [1/s]
-    declared_by : str - 'the sidecar <name>' or 'the video container'
-    """
-
-    def __init__(self, message, given_fps, declared_fps, declared_by):
-        super().__init__(message)
-        self.given_fps = given_fps
-        self.declared_fps = declared_fps
-        self.declared_by = declared_by
-
-
-#: Largest relative difference between a given frame rate and the one the file declares
-#: (:func:`declared_fps`) that is accepted without ``force_fps``.
-FPS_TOLERANCE = 0.01
-
-
-def _cv2():
-    import cv2
-    return cv2
+from analysis.tracking.errors import BallNotFoundError, TrackingError, VideoReadError
+from analysis.tracking.jar import track_jar_video
+from analysis.tracking.video import (declared_fps_from, decode_ahead, fps_mismatch, load_cv2,
+                                     open_video, read_sidecar)
 
 
 #: Rim-point methods of :class:`TrackerSettings` (the first is the default).
@@ -124,7 +85,7 @@ class TrackerSettings:
         used (a level error shifts opposite rims symmetrically: the centre does not move).
     rim_method : {'band', 'crossings', 'contour'}
         Rim points while tracking: 'band' (default): sub-pixel crossings on short profiles
-        across the expected rim only (:class:`_BandRim`; as precise as 'crossings', ~5x
+        across the expected rim only (:class:`BandRim`; as precise as 'crossings', ~5x
         faster); 'crossings': the same crossings from a scan of every rim_step-th row and column
         of the whole window (the earlier default); 'contour': OpenCV contour pixels (integer
         points, less precise). The scale frames always read every row and column with the
@@ -168,7 +129,7 @@ def detect_ball(gray: np.ndarray, r_min: float, r_max: float, roi=None):
     roi : (x0, y0, x1, y1), optional
         Search only inside this window.
     """
-    cv2 = _cv2()
+    cv2 = load_cv2()
     x0 = y0 = 0
     img = gray
     if roi is not None:
@@ -245,7 +206,7 @@ def _contour_points(win: np.ndarray, level: float):
     """Rim points from cv2.findContours of the thresholded window (pixel centres of the blob's
     boundary pixels, ~0.5 px inside the true rim on every side: the centre is unbiased).
     Contours touching the window border are dropped point-wise. Fast (all in OpenCV)."""
-    cv2 = _cv2()
+    cv2 = load_cv2()
     _, bw = cv2.threshold(win, level, 255, cv2.THRESH_BINARY)
     cnts, _ = cv2.findContours(bw, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cnts = [c for c in cnts if len(c) >= 12]
@@ -279,7 +240,7 @@ def _fit_circle(x: np.ndarray, y: np.ndarray):
 
 def _otsu_level(img: np.ndarray) -> float:
     """Grey level half-way between ball and background: Otsu's threshold of ``img`` + 0.5."""
-    cv2 = _cv2()
+    cv2 = load_cv2()
     level, _ = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     return float(level) + 0.5
 
@@ -321,7 +282,7 @@ def refine_centre(gray: np.ndarray, x_guess: float, y_guess: float, r_exp: float
     (x_px, y_px, r_px, n_inliers, rim_points, level) or None when no valid circle is found;
     rim_points = (xs, ys, is_col) in image coordinates (inliers only).
     """
-    cv2 = _cv2()
+    cv2 = load_cv2()
     H, W = gray.shape
     h = int(math.ceil(r_exp * (1 + margin)))
     xg, yg = int(round(x_guess)), int(round(y_guess))
@@ -376,7 +337,7 @@ def refine_centre(gray: np.ndarray, x_guess: float, y_guess: float, r_exp: float
             (xs[keep] + x0, ys[keep] + y0, isc[keep]), level)
 
 
-class _BandRim:
+class BandRim:
     """Sub-pixel rim points on short profiles across the expected rim (the fast rim fit).
 
     The ball's centre is known to a few px while tracking (MOSSE or the constant-velocity
@@ -542,60 +503,6 @@ def _vertical_radius(rim, xc: float, r: float) -> float:
 
 
 # --------------------------------------------------------------------------------------------
-# video reading
-# --------------------------------------------------------------------------------------------
-def open_video(path):
-    """Open a video for grey frames; raises VideoReadError for missing / unreadable files."""
-    cv2 = _cv2()
-    try:
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-    except AttributeError:  # pragma: no cover - older OpenCV
-        pass
-    path = Path(path)
-    if not path.is_file():
-        raise VideoReadError(f"{path}: no such video file")
-    if path.stat().st_size == 0:
-        raise VideoReadError(f"{path}: empty file")
-    params = [cv2.CAP_PROP_CONVERT_RGB, 0]
-    if hasattr(cv2, "CAP_PROP_N_THREADS"):
-        # one FFmpeg thread: raw grey decodes in ~30 instead of ~45 us/frame of CPU (the default
-        # thread pool only adds hand-overs); FFV1 is no faster with threads either
-        params += [cv2.CAP_PROP_N_THREADS, 1]
-    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, params)
-    if not cap.isOpened():
-        cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise VideoReadError(f"{path}: OpenCV cannot open it (unreadable or corrupt video)")
-    return cap
-
-
-def iter_gray(cap):
-    """Yield grey uint8 frames from an open capture."""
-    cv2 = _cv2()
-    while True:
-        ok, f = cap.read()
-        if not ok or f is None:
-            return
-        if f.ndim == 3:
-            f = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
-        elif f.dtype != np.uint8:
-            f = cv2.convertScaleAbs(f)
-        yield f
-
-
-def read_frames(path) -> list[np.ndarray]:
-    """All grey frames of a video (for benchmarks and small tests)."""
-    cap = open_video(path)
-    try:
-        frames = list(iter_gray(cap))
-    finally:
-        cap.release()
-    if not frames:
-        raise VideoReadError(f"{path}: no decodable frame (empty or corrupt video)")
-    return frames
-
-
-# --------------------------------------------------------------------------------------------
 # the tracker
 # --------------------------------------------------------------------------------------------
 @dataclass
@@ -648,7 +555,7 @@ class _ScaledMosse:
     cost ~2 ms/frame)."""
 
     def __init__(self, gray, xc, yc, r):
-        cv2 = _cv2()
+        cv2 = load_cv2()
         self.k = max(1, int(round(MOSSE_BOX_RADII * r / 32.0)))
         self.tr = _new_mosse_raw(self._small(gray), self._to_s(xc), self._to_s(yc), r / self.k)
 
@@ -675,7 +582,7 @@ def _new_mosse(gray, xc, yc, r):
 
 
 def _new_mosse_raw(gray, xc, yc, r):
-    cv2 = _cv2()
+    cv2 = load_cv2()
     tr = cv2.legacy.TrackerMOSSE_create()
     # box of an FFT-friendly size (a prime factor like 31 makes MOSSE ~15x slower)
     s = cv2.getOptimalDFTSize(int(round(MOSSE_BOX_RADII * r)))
@@ -742,8 +649,8 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
         if H is None:
             H, W = gray.shape
         if band is None and st.rim_method == "band" and r_exp is not None:
-            band = _BandRim(r_exp, W, st.rim_step, st.rim_span)
-            band_fine = _BandRim(r_exp, W, 1, st.rim_span)  # for the scale frames
+            band = BandRim(r_exp, W, st.rim_step, st.rim_span)
+            band_fine = BandRim(r_exp, W, 1, st.rim_span)  # for the scale frames
         q = "ok"
         res = None
         if prev is None:
@@ -910,92 +817,15 @@ def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None
     return res
 
 
-def _sidecar(path: Path):
-    """The video's sidecar and its contents: ``<stem>.json``, else a measurement dataset's
-    ``videos/video.json`` (DESIGN.md) beside it; (None, {}) when there is none."""
-    import json
-    side = path.with_name(path.stem + ".json")
-    if not side.is_file():
-        side = path.with_name("video.json")
-    if not side.is_file():
-        return None, {}
-    try:
-        meta = json.loads(side.read_text())
-    except json.JSONDecodeError as exc:
-        raise TrackingError(f"{side}: not valid JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise TrackingError(f"{side}: not a JSON object")
-    return side, meta
-
-
-def _declared_fps(side, meta: dict, cap):
-    """(fps, declared_by) of an open video: the sidecar's fps when it has one (the recording
-    rate), else the container's (OpenCV's CAP_PROP_FPS); (None, '') when the sidecar has none
-    and the container's is not > 0. A sidecar fps that is not a finite number > 0 is an error."""
-    if meta.get("fps") is not None:
-        try:
-            v = float(meta["fps"])
-        except (TypeError, ValueError):
-            v = float("nan")
-        if not (v > 0 and math.isfinite(v)):
-            raise TrackingError(f"{side}: fps must be a finite number > 0 [1/s], got "
-                                f"{meta['fps']!r}")
-        return v, f"the sidecar {side.name}"
-    v = float(cap.get(_cv2().CAP_PROP_FPS) or 0.0)
-    if v > 0 and math.isfinite(v):
-        return v, "the video container"
-    return None, ""
-
-
-def declared_fps(path):
-    """The frame rate a video file declares [1/s] and who declares it.
-
-    The sidecar (``<stem>.json``, else ``video.json`` beside the video) wins over the container:
-    it records the camera's rate, while a high-speed camera's file may hold a playback rate.
-
-    Returns
-    -------
-    (fps, declared_by) : (float, str) or (None, '') when the file declares no rate > 0
-    """
-    path = Path(path)
-    side, meta = _sidecar(path)
-    cap = open_video(path)
-    try:
-        return _declared_fps(side, meta, cap)
-    finally:
-        cap.release()
-
-
-def _fps_mismatch(path, given_fps: float, declared: float | None, declared_by: str):
-    """FpsMismatchError when ``given_fps`` is more than FPS_TOLERANCE from ``declared``."""
-    if declared is None or abs(given_fps / declared - 1.0) <= FPS_TOLERANCE:
-        return None
-    return FpsMismatchError(
-        f"{path}: fps {given_fps:g} disagrees with {declared:g} fps declared by {declared_by} "
-        f"({100 * abs(given_fps / declared - 1):.1f} % apart, more than "
-        f"{100 * FPS_TOLERANCE:g} %)", given_fps, declared, declared_by)
-
-
-def check_fps(path, fps: float):
-    """Compare a given frame rate [1/s] with the one the file declares (:func:`declared_fps`).
-
-    Returns
-    -------
-    FpsMismatchError or None - the mismatch (not raised), or None when they agree within
-        :data:`FPS_TOLERANCE` or the file declares no rate
-    """
-    return _fps_mismatch(path, float(fps), *declared_fps(path))
-
-
 def _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings,
                       force_fps=False) -> TrackResult:
     path = Path(path)
-    side, meta = _sidecar(path)
+    side, meta = read_sidecar(path)
     cap = open_video(path)
     given = fps is not None
     if fps is None:
         try:
-            fps = _declared_fps(side, meta, cap)[0]
+            fps = declared_fps_from(side, meta, cap)[0]
         except TrackingError:
             cap.release()
             raise
@@ -1005,7 +835,7 @@ def _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings,
     mismatch = None
     if given:
         try:
-            mismatch = _fps_mismatch(path, float(fps), *_declared_fps(side, meta, cap))
+            mismatch = fps_mismatch(path, float(fps), *declared_fps_from(side, meta, cap))
         except TrackingError:
             cap.release()
             raise
@@ -1028,271 +858,3 @@ def _track_ball_video(path, fps, ball_diameter_m, m_per_px, settings,
                                     "declared_fps": mismatch.declared_fps,
                                     "declared_by": mismatch.declared_by}
     return res
-
-
-def decode_ahead(cap, batch: int = 32, depth: int = 3):
-    """Grey frames of an open capture, decoded in a background thread (OpenCV releases the GIL)
-    into a ring of ``depth`` preallocated blocks of ``batch`` frames while the caller tracks.
-
-    No per-frame allocation (a fresh 128 kB frame costs page faults) and one queue hand-over per
-    block, not per frame. A yielded frame is a view into a block that is refilled once the
-    caller has asked for a frame of the following block: use each frame before the next one or
-    copy it (:func:`track_frames` does). Decoder errors are raised in the caller.
-    """
-    import queue
-    import threading
-    cv2 = _cv2()
-    first = next(iter_gray(cap), None)
-    if first is None:
-        return
-    H, W = first.shape
-    free: queue.Queue = queue.Queue()
-    full: queue.Queue = queue.Queue()
-    for _ in range(depth):
-        free.put(np.empty((batch, H, W), np.uint8))
-    stop = threading.Event()
-
-    def read_into(dst):
-        ok, f = cap.read(dst)
-        if not ok or f is None:
-            return False
-        if f is dst:  # decoded in place (grey uint8 of the same size)
-            return True
-        if f.shape[:2] != dst.shape:
-            return None
-        if f.ndim == 3:
-            cv2.cvtColor(f, cv2.COLOR_BGR2GRAY, dst)
-        elif f.dtype != np.uint8:
-            cv2.convertScaleAbs(f, dst)
-        else:
-            dst[...] = f
-        return True
-
-    def work():
-        try:
-            blk = free.get()
-            blk[0] = first
-            k, more = 1, True
-            while more and not stop.is_set():
-                while k < batch:
-                    got = read_into(blk[k])
-                    if got is None:
-                        raise VideoReadError(f"frame size changed within the video "
-                                             f"(first frame {W}x{H})")
-                    if not got:
-                        more = False
-                        break
-                    k += 1
-                full.put((blk, k))
-                if more:
-                    while not stop.is_set():
-                        try:
-                            blk = free.get(timeout=0.1)
-                            break
-                        except queue.Empty:
-                            continue
-                    k = 0
-        except BaseException as exc:  # handed to the caller
-            full.put(exc)
-        finally:
-            full.put(None)
-
-    th = threading.Thread(target=work, daemon=True)
-    th.start()
-    try:
-        while True:
-            item = full.get()
-            if item is None:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            blk, k = item
-            for i in range(k):
-                yield blk[i]
-            free.put(blk)
-    finally:
-        stop.set()
-        th.join(timeout=5)
-
-
-# --------------------------------------------------------------------------------------------
-# the jar: its end walls in a band of rows -> jar_x_m
-# --------------------------------------------------------------------------------------------
-class JarNotFoundError(TrackingError):
-    """The jar's end walls cannot be found in the video."""
-
-
-def jar_band(gray: np.ndarray, inset_frac: float = 0.12):
-    """(row0, row1) of a band just inside the jar's bottom wall, where its two end walls cross
-    and the ball, flying near the jar's axis, seldom comes: the jar's top and bottom walls are
-    the two darkest rows of the frame (their lines span the whole jar; an occluder or the ball
-    darkens only part of a row)."""
-    g = np.asarray(gray, float)
-    dark = np.median(g) - g.mean(axis=1)
-    rows = np.argsort(dark)[::-1]
-    top = int(rows[0])
-    far = [r for r in rows[1:] if abs(int(r) - top) > 0.1 * g.shape[0]]
-    if not far:
-        raise JarNotFoundError("no two dark horizontal jar walls in the first frame")
-    a, b = sorted((top, int(far[0])))
-    h = b - a
-    r1 = b - 3
-    r0 = max(a + 1, int(round(b - inset_frac * h)))
-    if r1 - r0 < 2:
-        raise JarNotFoundError("the jar is too small in the frame (%d px between its walls)" % h)
-    return r0, r1
-
-
-def _dip_centroid(p: np.ndarray, c: float, half: int, level: float, width: int = 4):
-    """Sub-pixel centre of a dark dip of profile ``p`` near column ``c``: its darkest column
-    within ``half`` px of ``c``, then the darkness-weighted (level - p, >= 0) centroid of the
-    columns within ``width`` px of that (the whole dip with its anti-aliased edges)."""
-    i0, i1 = max(0, int(round(c)) - half), min(len(p), int(round(c)) + half + 1)
-    if i1 <= i0:
-        return np.nan
-    m = i0 + int(np.argmin(p[i0:i1]))
-    j0, j1 = max(0, m - width), min(len(p), m + width + 1)
-    d = np.maximum(level - p[j0:j1], 0.0)
-    if d.sum() <= 0:
-        return np.nan
-    return float(j0 + np.sum(d * np.arange(len(d))) / np.sum(d))
-
-
-def track_jar(frames, m_per_px: float, band=None, max_step_px: float = 12.0):
-    """Jar displacement along x per frame [m], from its two end walls.
-
-    In a band of rows (default :func:`jar_band` of the first frame) each frame's mean grey over
-    the band is a profile with two dark dips, the end walls; each is followed by its
-    darkness-weighted centroid (sub-pixel), the jar's position is their mean. Returns
-    (jar_x_m, info): displacement relative to the record's mean (the twin's jar_x_m is zero-mean
-    too), NaN where a wall was lost; info holds the band, the walls' first columns and the
-    length between them [px]."""
-    it = iter(frames)
-    try:
-        first = np.asarray(next(it), float)
-    except StopIteration:
-        raise JarNotFoundError("no frame") from None
-    if first.ndim == 3:
-        first = first.mean(axis=2)
-    r0, r1 = band if band is not None else jar_band(first)
-    if not (0 <= r0 < r1 <= first.shape[0]):
-        raise JarNotFoundError("jar band rows %s outside the frame (height %d)"
-                               % ((r0, r1), first.shape[0]))
-    p = first[r0:r1].mean(axis=0)
-    level = float(np.median(p))
-    dark = level - p
-    order = np.argsort(dark)[::-1]
-    c1 = int(order[0])
-    rest = [int(i) for i in order[1:] if abs(int(i) - c1) > 0.1 * len(p)]
-    if not rest or dark[rest[0]] < 0.3 * dark[c1]:
-        raise JarNotFoundError("rows %d-%d: not two dark jar end walls" % (r0, r1))
-    caps = sorted((c1, rest[0]))
-    half = int(max(4, max_step_px))
-    pos = [[_dip_centroid(p, c, half, level) for c in caps]]
-    for g in it:
-        g = np.asarray(g, float)
-        if g.ndim == 3:
-            g = g.mean(axis=2)
-        q = g[r0:r1].mean(axis=0)
-        lv = float(np.median(q))
-        prev = pos[-1]
-        cur = []
-        for k, c in enumerate(prev):
-            guess = c if np.isfinite(c) else next((x[k] for x in reversed(pos)
-                                                   if np.isfinite(x[k])), caps[k])
-            cur.append(_dip_centroid(q, guess, half, lv))
-        pos.append(cur)
-    P = np.array(pos, float)
-    x_px = P.mean(axis=1)
-    length = P[:, 1] - P[:, 0]
-    bad = ~np.isfinite(length) | (np.abs(length - np.nanmedian(length)) > 2.0)
-    x_px[bad] = np.nan
-    x_m = (x_px - np.nanmean(x_px)) * m_per_px
-    return x_m, {"band_rows": (int(r0), int(r1)), "wall_px": caps,
-                 "length_px": float(np.nanmedian(length)), "n_lost": int(bad.sum())}
-
-
-def track_jar_video(path, m_per_px: float, band=None):
-    """:func:`track_jar` on a video file."""
-    cap = open_video(path)
-    try:
-        return track_jar(iter_gray(cap), m_per_px, band=band)
-    finally:
-        cap.release()
-
-
-def write_track(track: pd.DataFrame, out) -> Path:
-    """Write a track CSV atomically (temp file, then rename)."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".tmp-{out.name}-{os.getpid()}")
-    track.to_csv(tmp, index=False)
-    os.replace(tmp, out)
-    return out
-
-
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m analysis.tracking",
-                                description="Track one ball in a high-speed video -> track CSV "
-                                            "(t_s, x_m, y_m, quality, x_px, y_px, r_px "
-                                            "[, jar_x_m]).",
-                                epilog="example: python -m analysis.tracking film.mkv --fps 2134 "
-                                       "--ball-diameter-mm 20.6 --out track.csv")
-    p.add_argument("video")
-    p.add_argument("--fps", type=float, default=None,
-                   help="frame rate [1/s] (default: the sidecar's, else the container's); "
-                        f"refused when more than {100 * FPS_TOLERANCE:g} %% from the rate the "
-                        "file declares, unless --force-fps")
-    p.add_argument("--force-fps", action="store_true",
-                   help="track at --fps even when the file declares another rate (warns)")
-    p.add_argument("--ball-diameter-mm", type=float, default=None,
-                   help="real ball diameter [mm]; the scale comes from its size in pixels")
-    p.add_argument("--m-per-px", type=float, default=None,
-                   help="scale [m/px], overrides the ball size")
-    p.add_argument("--rim-method", choices=RIM_METHODS, default=TrackerSettings.rim_method,
-                   help="sub-pixel rim points: 'band' (default, fast), 'crossings' (scan of the "
-                        "whole window, the earlier default), 'contour' (OpenCV contours)")
-    p.add_argument("--mosse-every", type=int, default=TrackerSettings.mosse_every,
-                   help="update MOSSE on every this-many-th frame [frames] (default %(default)s)")
-    p.add_argument("--jar", action="store_true",
-                   help="also follow the jar by its end walls (lab-frame video): column jar_x_m, "
-                        "for the impact observables (python -m analysis.flights)")
-    p.add_argument("--jar-band", type=int, nargs=2, metavar=("ROW0", "ROW1"), default=None,
-                   help="image rows [px] where the jar's end walls are followed (default: "
-                        "found, just inside the jar's bottom wall)")
-    p.add_argument("--out", required=True, help="track CSV to write")
-    a = p.parse_args(argv)
-    try:
-        if a.fps is not None and a.force_fps and math.isfinite(a.fps) and a.fps > 0:
-            forced = check_fps(a.video, a.fps)
-            if forced is not None:
-                print(f"analysis.tracking: warning: {forced}; tracking at {a.fps:g} fps as "
-                      "--force-fps asks", file=sys.stderr)
-        res = track_video(a.video, a.fps,
-                          ball_diameter_m=None if a.ball_diameter_mm is None
-                          else a.ball_diameter_mm * 1e-3, m_per_px=a.m_per_px,
-                          settings=TrackerSettings(rim_method=a.rim_method,
-                                                   mosse_every=a.mosse_every),
-                          jar=a.jar or a.jar_band is not None,
-                          jar_band_rows=None if a.jar_band is None else tuple(a.jar_band),
-                          force_fps=a.force_fps)
-        write_track(res.track, a.out)
-    except FpsMismatchError as exc:
-        print(f"analysis.tracking: error: {exc}; leave out --fps to use {exc.declared_fps:g}, "
-              f"or add --force-fps to track at {exc.given_fps:g} anyway", file=sys.stderr)
-        return 2
-    except (TrackingError, OSError) as exc:
-        print(f"analysis.tracking: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"{a.out}: {res.n_frames} frames, {res.n_lost} lost, {res.n_reacquired} reacquired, "
-          f"scale {res.m_per_px * 1e3:.5f} mm/px ({res.scale_source}, ball "
-          f"{res.ball_diameter_px:.2f} px), {res.n_frames / res.wall_s:.0f} frames/s")
-    if "jar" in res.params:
-        j = res.params["jar"]
-        print(f"jar: end walls followed in rows {j['band_rows'][0]}-{j['band_rows'][1]}, "
-              f"{j['length_px']:.2f} px apart, {j['n_lost']} frame(s) lost")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
