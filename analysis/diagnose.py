@@ -74,8 +74,8 @@ CLI::
 
     python -m analysis.diagnose --dataset DIR --model pkg.module:factory --out DIR [--add best]
 
-``factory(dataset)`` returns ``{"predict": ..., "base_params": [...], "effects": [...],
-"model_se": ..., "crn_correlation": ...}``; writes diagnosis.csv, structure.csv, diagnosis.md,
+``factory(dataset)`` returns a :class:`ModelSpec` (predict, base_params, effects, model_se,
+crn_correlation, ...; a dict with those keys is still taken); writes diagnosis.csv, structure.csv, diagnosis.md,
 ranking.png and, with --add, staircase.csv, before_after.csv, staircase.png.
 
 References: Self, S.G., Liang, K.-Y. (1987) JASA 82, 605 (boundary LR tests); Rao score test;
@@ -945,6 +945,71 @@ def calibrate_base(predict, observations, base_params, *, model_se=None,
     return prob.stage(theta0), prob.fit(theta0)
 
 
+@dataclass
+class ModelSpec:
+    """What a model factory (``--model package.module:function``) gives diagnose.
+
+    predict : callable(theta: dict, effects: dict | None) -> Series of the observables
+    base_params : list of :class:`BaseParameter` - calibrated before any effect
+    effects : list of :class:`Effect` - the candidates
+    model_se : Series or None - the model's own standard error per observable
+    crn_correlation : float - correlation of the model's noise between effect levels
+    fixed_effects : dict or None - effects held on at fixed strengths
+    noise_observables : set or None - observables whose sd the bootstrap treats as noise
+    effect_se : callable(effects) -> Series, or None - the effects' resolution error
+    observations : DataFrame or None - the observations to fit (default: from the dataset)
+    model : object - the model behind ``predict`` (e.g. analysis.twin_model.TwinModel)
+    patterns : object - the model's motion patterns, where it has them
+
+    A factory may still return the same keys as a dict (the earlier contract):
+    :meth:`from_any` takes both, and a ModelSpec answers ``spec["predict"]`` and
+    ``spec.get("effect_se")`` as the dict did.
+    """
+
+    predict: object
+    base_params: list
+    effects: list
+    model_se: object = None
+    crn_correlation: float = 0.0
+    fixed_effects: dict | None = None
+    noise_observables: set | None = None
+    effect_se: object = None
+    observations: object = None
+    model: object = None
+    patterns: object = None
+
+    @classmethod
+    def from_any(cls, obj) -> "ModelSpec":
+        """A ModelSpec from a ModelSpec or a dict with its field names (unknown keys are an
+        error naming them; predict, base_params and effects are required)."""
+        if isinstance(obj, cls):
+            return obj
+        if not isinstance(obj, dict):
+            raise TypeError("a model factory must return a ModelSpec or a dict, got %s"
+                            % type(obj).__name__)
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(obj) - known)
+        if unknown:
+            raise KeyError("model spec: unknown key(s) %s (known: %s)"
+                           % (", ".join(unknown), ", ".join(sorted(known))))
+        missing = [k for k in ("predict", "base_params", "effects") if k not in obj]
+        if missing:
+            raise KeyError("model spec: missing %s" % ", ".join(missing))
+        return cls(**obj)
+
+    def __getitem__(self, key):
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __contains__(self, key):
+        return key in self.__dataclass_fields__ and getattr(self, key) is not None
+
+    def get(self, key, default=None):
+        v = getattr(self, key, None) if key in self.__dataclass_fields__ else None
+        return default if v is None else v
+
+
 def _load_model_factory(spec):
     """'package.module:function' -> the function."""
     import importlib
@@ -1017,10 +1082,11 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
 def main(argv=None):
     """``python -m analysis.diagnose --dataset DIR --model pkg.mod:factory --out DIR [--add X]``
 
-    ``factory(dataset)`` returns a dict with keys ``predict``, ``base_params``, ``effects`` and
-    optionally ``model_se``, ``crn_correlation``, ``fixed_effects``, ``noise_observables`` and
-    ``observations`` (the table the model predicts, when it reads more of the dataset than its
-    summary and yields, e.g. the impact observables of jar tracks).
+    ``factory(dataset)`` returns a :class:`ModelSpec` (or a dict with its keys): ``predict``,
+    ``base_params``, ``effects`` and optionally ``model_se``, ``crn_correlation``,
+    ``fixed_effects``, ``noise_observables``, ``effect_se`` and ``observations`` (the table the
+    model predicts, when it reads more of the dataset than its summary and yields, e.g. the
+    impact observables of jar tracks).
     """
     from analysis.measurements import DatasetError, load_dataset
 
@@ -1031,8 +1097,9 @@ def main(argv=None):
         "--model analysis.twin_model:factory --out results/diagnose_paper_table3 --add best")
     ap.add_argument("--dataset", required=True, help="dataset folder data/measurements/<name>/")
     ap.add_argument("--model", required=True,
-                    help="package.module:function; function(dataset) returns a dict with "
-                    "predict, base_params, effects [, model_se, crn_correlation, fixed_effects]")
+                    help="package.module:function; function(dataset) returns a ModelSpec (or a "
+                    "dict with its keys): predict, base_params, effects [, model_se, "
+                    "crn_correlation, fixed_effects, effect_se, observations]")
     ap.add_argument("--out", required=True, help="output folder (replaced atomically)")
     ap.add_argument("--add", help="effect to switch on afterwards ('best': the verdict's)")
     ap.add_argument("--alpha", type=float, default=0.01,
@@ -1042,19 +1109,19 @@ def main(argv=None):
     try:
         check_out_dir(args.out, [args.dataset])
         ds = load_dataset(args.dataset)
-        problem = _load_model_factory(args.model)(ds)
+        problem = ModelSpec.from_any(_load_model_factory(args.model)(ds))
         kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects",
                                       "noise_observables", "effect_se") if k in problem}
         obs = problem.get("observations", ds)
-        diag = diagnose(problem["predict"], obs, problem["base_params"], problem["effects"],
+        diag = diagnose(problem.predict, obs, problem.base_params, problem.effects,
                         alpha=args.alpha, conditions=ds.conditions, **kw)
         added = None
         name = diag.best if args.add == "best" else args.add
         if name:
             kw.pop("crn_correlation", None)
             kw.pop("noise_observables", None)
-            added = add_effect(problem["predict"], obs, problem["base_params"],
-                               problem["effects"], name, **kw)
+            added = add_effect(problem.predict, obs, problem.base_params,
+                               problem.effects, name, **kw)
         write_diagnosis(diag, args.out, added, ds.name, protected=[args.dataset],
                         synthetic=ds.synthetic)
     except (DatasetError, ValueError, KeyError, TypeError) as exc:

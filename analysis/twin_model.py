@@ -1027,10 +1027,10 @@ def factory(dataset, library=None, emulator=None, base=("restitution", "amplitud
     if fl_ids:
         obs = with_run_sd(obs, m.flight_run_sd())
     noise = {"v_mean_m_s", "f_col_hz"} | (set(FLIGHT_OBSERVABLES) if fl_ids else set())
-    return {"predict": m.predict, "base_params": m.base_params(), "effects": m.effects(),
-            "model_se": m.model_se(), "effect_se": m.resolution_se,
-            "crn_correlation": 0.0, "observations": obs,
-            "noise_observables": noise, "model": m, "patterns": patterns}
+    from analysis.diagnose import ModelSpec
+    return ModelSpec(predict=m.predict, base_params=m.base_params(), effects=m.effects(),
+                     model_se=m.model_se(), effect_se=m.resolution_se, crn_correlation=0.0,
+                     observations=obs, noise_observables=noise, model=m, patterns=patterns)
 
 
 def main(argv=None):

@@ -395,3 +395,27 @@ def test_effect_se_enters_sigma_and_the_likelihood_does_not_chase_it():
     assert b.after.chi2 < plain.after.chi2
     # the stages without the effect keep the plain sigma
     assert b.before.chi2 == pytest.approx(plain.before.chi2)
+
+
+def test_model_spec_takes_the_dict_contract_and_names_bad_keys():
+    """--model factories may return a ModelSpec or the earlier dict; a dict with an unknown or
+    a missing key is one error naming it; the spec answers the dict's item access."""
+    from analysis.diagnose import BaseParameter, ModelSpec
+
+    def predict(theta, effects=None):
+        return None
+
+    base = [BaseParameter("restitution", 0.3, 0.1, 0.7)]
+    spec = ModelSpec.from_any({"predict": predict, "base_params": base, "effects": [],
+                               "model_se": None, "crn_correlation": 0.2})
+    assert spec.predict is predict and spec["base_params"] is base
+    assert spec["crn_correlation"] == 0.2 and "crn_correlation" in spec
+    assert "model_se" not in spec and spec.get("effect_se", "none") == "none"
+    assert ModelSpec.from_any(spec) is spec
+    with pytest.raises(KeyError, match="unknown key.*modelse"):
+        ModelSpec.from_any({"predict": predict, "base_params": base, "effects": [],
+                            "modelse": 1})
+    with pytest.raises(KeyError, match="missing effects"):
+        ModelSpec.from_any({"predict": predict, "base_params": base})
+    with pytest.raises(TypeError, match="ModelSpec or a dict"):
+        ModelSpec.from_any([predict])
