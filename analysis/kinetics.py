@@ -910,19 +910,19 @@ def _build_parser() -> argparse.ArgumentParser:
 
 def _inputs(args):
     """The files and folders ``run`` reads: never an output."""
-    from analysis import yield_data
-    return [args.yields if args.yields is not None else yield_data.SYNTHETIC_DATASET_DIR,
+    from analysis import yield_dataset
+    return [args.yields if args.yields is not None else yield_dataset.SYNTHETIC_DATASET_DIR,
             args.twin_table]
 
 
 def run(args) -> Path:
-    from analysis import yield_data
+    from analysis import yield_dataset
     from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
 
     protected = _inputs(args)
     check_out_dir(args.out, protected)
-    ds_path = args.yields if args.yields is not None else yield_data.SYNTHETIC_DATASET_DIR
-    ds = yield_data.load_yield_dataset(ds_path)
+    ds_path = args.yields if args.yields is not None else yield_dataset.SYNTHETIC_DATASET_DIR
+    ds = yield_dataset.load_yield_dataset(ds_path)
     if args.twin_table is not None:
         inputs = load_twin_energy_table(args.twin_table)
     else:
@@ -953,6 +953,20 @@ def run(args) -> Path:
     return args.out
 
 
+def model_curves(fit, data, energy, n=200) -> dict:
+    """condition_id -> (time_min, yield_pct) of the fitted model from 0 to 1.05 x the condition's
+    last milling time (figure 10's lines)."""
+    e = energy.set_index("condition_id")
+    out = {}
+    for cid, grp in data.groupby("condition_id", sort=False):
+        if cid not in e.index:
+            continue
+        t = np.linspace(0, grp["time_min"].max() * 1.05, n)
+        p = predict_yield(fit, e.loc[cid, "e_kin_j"], e.loc[cid, "f_col_hz"], t)
+        out[cid] = (t, np.asarray(p["yield_pct"], float))
+    return out
+
+
 def _write_figures(folder, fit, data, inputs, energy, synthetic, src):
     import matplotlib
     matplotlib.use("Agg")
@@ -966,7 +980,7 @@ def _write_figures(folder, fit, data, inputs, energy, synthetic, src):
     fig.tight_layout(); fig.savefig(folder / "fig09_ekin.png", dpi=130); plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6, 4.2))
-    kp.plot_yield_vs_time(data, fit=fit, energy=energy, ax=ax)
+    kp.plot_yield_vs_time(data, curves=model_curves(fit, data, energy), ax=ax)
     ax.set_title(tag + "yield vs milling time (20 mm ball)", fontsize=9)
     fig.tight_layout(); fig.savefig(folder / "fig10_yield_time.png", dpi=130); plt.close(fig)
 

@@ -720,16 +720,14 @@ def main(argv=None) -> int:
     p.add_argument("--frame", choices=("lab", "jar"), default="lab")
     p.add_argument("--plain", action="store_true", help="no kink correction (paper's recipe)")
     p.add_argument("--noise-study", action="store_true",
-                   help="synthetic-video noise/blur study -> results/observe/noise_blur_study.csv")
-    p.add_argument("--out", help="CSV for the one-row summary (or the study table)")
+                   help="moved: python -m analysis.synthvideo --noise-study (the synthetic films "
+                   "belong to synthvideo, which reads this module)")
+    p.add_argument("--out", help="CSV for the one-row summary (or the operator-bias table)")
     a = p.parse_args(argv)
     try:
         if a.noise_study:
-            from analysis.synthvideo import noise_blur_study
-            df = noise_blur_study(a.out)
-            with pd.option_context("display.width", 220, "display.max_columns", 40):
-                print(df.round(4).to_string(index=False))
-            return 0
+            p.error("the noise/blur study moved: python -m analysis.synthvideo --noise-study "
+                    "[--out CSV]")
         kw = dict(fps=a.fps, frame=a.frame, kink_correction=not a.plain)
         if a.frequency_hz is not None:
             kw["frequency_hz"] = a.frequency_hz
@@ -746,7 +744,7 @@ def main(argv=None) -> int:
             print(out_df.T.to_string(header=False))
             warning = res.f_col_warning()
         else:
-            p.error("give a track CSV, --recording DIR or --noise-study")
+            p.error("give a track CSV or --recording DIR")
             return 2
         if a.out:
             out = Path(a.out)

@@ -657,7 +657,7 @@ STUDIES = [
           "known truth, and how far is it from the twin's direct 3-D figures? Synthetic videos "
           "with noise and blur, and the demo's twin recordings (`analysis.observe`, "
           "`analysis.studies.operator_bias`).",
-          "`python -m analysis.observe --noise-study`; `python -m analysis.studies.operator_bias`",
+          "`python -m analysis.synthvideo --noise-study`; `python -m analysis.studies.operator_bias`",
           page_observe),
     Study("studies", "Convergence studies: facet count and time step",
           "Is the twin converged in mesh resolution and time step? v_mean and f_col at 25 Hz over "

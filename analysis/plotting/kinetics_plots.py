@@ -34,28 +34,24 @@ def plot_ekin_map(inputs: pd.DataFrame, ax=None):
     return ax
 
 
-def plot_yield_vs_time(data: pd.DataFrame, fit=None, energy: pd.DataFrame | None = None, ax=None):
-    """Figure 10: yield [%] vs milling time per frequency; with ``fit`` and ``energy`` the model
-    curve of each condition (line, wax ramp, plateau) is drawn too.
+def plot_yield_vs_time(data: pd.DataFrame, curves: dict | None = None, ax=None):
+    """Figure 10: yield [%] vs milling time per frequency; with ``curves`` the model curve of
+    each condition (line, wax ramp, plateau) is drawn too.
 
     Parameters
     ----------
     data : DataFrame - condition_id, frequency_hz, time_min, yield_pct
-    fit : KineticsFit, optional
-    energy : DataFrame, optional - condition_id, e_kin_j, f_col_hz
+    curves : dict condition_id -> (time_min array, yield_pct array), optional - the model's
+        curves, computed by the caller (analysis.kinetics.model_curves)
     """
-    from analysis.kinetics import predict_yield
-
     ax = _ax(ax)
     for i, (cid, grp) in enumerate(data.groupby("condition_id", sort=False)):
         col = f"C{i}"
         f = grp["frequency_hz"].iloc[0]
         ax.plot(grp["time_min"], grp["yield_pct"], "o", color=col, label=f"{f:g} Hz")
-        if fit is not None and energy is not None:
-            r = energy.set_index("condition_id").loc[cid]
-            t = np.linspace(0, grp["time_min"].max() * 1.05, 200)
-            p = predict_yield(fit, r["e_kin_j"], r["f_col_hz"], t)
-            ax.plot(t, p["yield_pct"], "-", color=col, lw=1)
+        if curves and cid in curves:
+            t, y = curves[cid]
+            ax.plot(t, y, "-", color=col, lw=1)
     ax.set_xlabel("milling time [min]")
     ax.set_ylabel("monomer yield X [%]")
     ax.set_ylim(-3, 105)
