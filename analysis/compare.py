@@ -54,7 +54,8 @@ from scipy import signal, stats
 
 from analysis.flights import FLIGHT_OBSERVABLES, dataset_flights
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
-                                   Dataset, DatasetError, load_dataset, measurement_table)
+                                   Dataset, DatasetError, load_dataset, measurement_table,
+                                   yield_table)
 
 #: default per-replicate sd of the twin when the predictions carry none
 DEFAULT_MODEL_V_REL_SD = 0.02
@@ -317,14 +318,11 @@ def compare(dataset: Dataset, predictions: pd.DataFrame, *, model_tracks: dict |
     meas = measurement_table(dataset, v_rel_sd=v_rel_sd, f_col_sd_hz=f_col_sd_hz)
     meas["time_min"] = np.nan
     if dataset.yields is not None:
-        y = dataset.yields
-        ysd = (y["yield_sd_pct"].to_numpy(float) if "yield_sd_pct" in y.columns
-               else np.full(len(y), np.nan))
-        ydef = ~np.isfinite(ysd)
-        ysd = np.where(ydef, yield_sd_pct, ysd)
+        y = yield_table(dataset, yield_sd_pct)    # the one rule for a missing yield sd
         meas = pd.concat([meas, pd.DataFrame({
             "condition_id": y["condition_id"].to_numpy(), "observable": "yield_pct",
-            "value": y["yield_pct"].to_numpy(float), "sd": ysd, "sd_default": ydef,
+            "value": y["value"].to_numpy(float), "sd": y["sd"].to_numpy(float),
+            "sd_default": y["sd_default"].to_numpy(bool),
             "time_min": y["time_min"].to_numpy(float)})], ignore_index=True)
     meas["one_realisation"] = False
     if flights and pred["observable"].isin(FLIGHT_OBSERVABLES).any():
