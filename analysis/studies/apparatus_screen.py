@@ -121,6 +121,11 @@ def write(summary: pd.DataFrame, seeds: int, out=OUT):
                       ("calibrate_measured", "calibrated on Table 3's measurements")):
         if (out / sub / "README.md").exists():
             lines.append("- [%s](%s/README.md): %s" % (sub, sub, what))
+    for sd in ("0.5", "1", "1.5", "2"):
+        sub = "loop_table3_end_fillet_sd%s" % sd
+        if (out / sub / "report.md").exists():
+            lines.append("- [%s](%s/report.md): the loop on Table 3 with the end fillet in its "
+                         "catalog, v sd %s %% assumed" % (sub, sub, sd))
     (out / "README.md").write_text("\n".join(lines) + "\n")
 
 
