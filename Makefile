@@ -122,7 +122,8 @@ calibrate: setup
 
 # the twin of the paper's mill (docs/apparatus.md): one-at-a-time screen, the apparatus
 # identified from the paper's EDEM column at its contact parameters, then contact + apparatus
-# calibrated on the measurements -> results/apparatus/ (about 2 h on 2 cores, cached runs)
+# calibrated on the measurements, then the loop on Table 3 with the end fillet in its catalog at
+# assumed v sds of 0.5-2 % -> results/apparatus/ (about 3 h on 2 cores from an empty cache)
 PAPER_CONTACT_SET = --set restitution=0.11 --set static_friction=0.7 --set rolling_friction=0.5
 EDEM_LAW_SET = --set rolling_model=constant_torque --set frame=jar
 apparatus: setup
@@ -141,6 +142,15 @@ apparatus: setup
 	  --free jar_fillet_radius_m --n-initial 40 --n-refine 10 --rounds 2 --n-validation 4
 	$(VPY) -m analysis.studies.apparatus_identification --cal results/apparatus/calibrate_measured \
 	  --profile results/apparatus/measured_apparatus.json
+	$(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --with-effect end_fillet \
+	  --v-rel-sd 0.01 --out results/apparatus/loop_table3_end_fillet_sd1
+	$(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --with-effect end_fillet \
+	  --v-rel-sd 0.005 --max-refits 1 --out results/apparatus/loop_table3_end_fillet_sd0.5
+	$(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --with-effect end_fillet \
+	  --v-rel-sd 0.015 --max-refits 1 --out results/apparatus/loop_table3_end_fillet_sd1.5
+	$(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --with-effect end_fillet \
+	  --v-rel-sd 0.02 --max-refits 1 --out results/apparatus/loop_table3_end_fillet_sd2
+	$(VPY) -m analysis.studies.apparatus_screen
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv
