@@ -95,11 +95,7 @@ def load_measurements(dataset_dir=PAPER_TABLE3_DIR):
     a missing or bad value, or a condition without a summary row.
     """
     from analysis.measurements import summary_wide
-    ds = load_dataset(dataset_dir)
-    try:
-        return summary_wide(ds)
-    except MeasurementError as exc:
-        raise MeasurementError(str(exc).replace(ds.name, str(dataset_dir), 1)) from None
+    return summary_wide(load_dataset(dataset_dir), source=dataset_dir)
 
 
 def observe(table, velocity_frame="lab", operator="auto"):

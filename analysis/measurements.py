@@ -659,7 +659,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
     return path
 
 
-def summary_wide(dataset: Dataset) -> pd.DataFrame:
+def summary_wide(dataset: Dataset, source=None) -> pd.DataFrame:
     """One row per condition: conditions.csv joined with summary.csv (calibration, the demo).
 
     Returns
@@ -668,7 +668,7 @@ def summary_wide(dataset: Dataset) -> pd.DataFrame:
     ball_diameter_m, the optional condition columns, v_mean_m_s, v_mean_sd_m_s (NaN if not
     given), f_col_hz, f_col_sd_hz, and any other summary column (numeric where every filled cell
     is a number, e.g. the paper's ``v_mean_dem_paper_m_s``); ``attrs`` 'velocity_frame' and
-    'name'.
+    'name'. ``source`` (e.g. the dataset's folder) names it in errors (default its name).
 
     Raises
     ------
@@ -686,7 +686,7 @@ def summary_wide(dataset: Dataset) -> pd.DataFrame:
     missing = sorted(set(cond["condition_id"]) - set(summ["condition_id"]))
     if missing:
         raise DatasetError("%s: no summary.csv row for condition(s) %s"
-                           % (dataset.name, ", ".join(missing)))
+                           % (source or dataset.name, ", ".join(missing)))
     summ = summ.drop(columns=[c for c in summ.columns if c in cond.columns
                               and c != "condition_id"])
     df = cond.merge(summ, on="condition_id", how="left")

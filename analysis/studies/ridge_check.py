@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -86,7 +87,7 @@ def main(argv=None) -> int:
                                                     progress=True, scheduler=None, slurm=None),
                                       base_config=None, flight_ids=list(model.flight_conditions))
             key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
-            sc = rerun_score(obs, pred, se, type("F", (), {"prediction": pred})(), len(base) + 1)
+            sc = rerun_score(obs, pred, se, SimpleNamespace(prediction=pred), len(base) + 1)
             res[label] = (pred.reindex(key), se.reindex(key), sc)
         pt, st, sct = res["true"]
         pf, sf, scf = res["fitted"]
