@@ -11,7 +11,10 @@
    against ``--budget-runs``; twin runs are cached by run id, so a killed loop resumes.
 3. **Calibrate** the base parameters (restitution, stroke, the frictions where they move the
    observables) on the dataset. Where the calibrated point lies beyond the model's measured
-   responses, **re-anchor** there (new anchor and responses) and calibrate again.
+   responses, **re-anchor** there (new anchor and responses) and calibrate again. The anchor
+   is settled on the base responses alone before the effect responses (about half of the
+   model's runs) are built, so these are built once; a final point that leaves the responses
+   after effects were added re-anchors the whole model.
 4. **Diagnose and add, forward selection**: rank every candidate effect; when one is
    significant, add it (its strength becomes a fitted parameter beside the base ones) and
    diagnose again with the rest, until nothing more is significant (``--max-effects``).
@@ -580,9 +583,8 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             return pred, se, rmodel.runs_
         return rerun_fn
 
-    def analyse(model):
-        """calibrate (and, with reruns, refit on the twin-corrected model), forward
-        selection, final joint fit on one model."""
+    def calibrated(model):
+        """(obs, baseline fit, calibrated fit, theta) of the base parameters on ``model``."""
         obs = fit_observations(obs0, model)
         baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
                                        model_se=model.model_se())
@@ -593,6 +595,12 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
                                p.lower, p.upper) for p in model.base_params()]
         _, cal = calibrate_base(model.predict, obs, start, model_se=model.model_se(theta))
         theta = {p.name: cal.params[p.name] for p in model.base_params()}
+        return obs, baseline, cal, theta
+
+    def analyse(model):
+        """calibrate (and, with reruns, refit on the twin-corrected model), forward
+        selection, final joint fit on one model."""
+        obs, baseline, cal, theta = calibrated(model)
         nb = len(model.base_params())
         stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
         diag_model, pre = model, []
@@ -631,22 +639,37 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         return dict(obs=obs, cal=cal, nb=nb, stair=stair, fs=fs, added=added, final=final,
                     theta=theta, pre=pre)
 
-    # --- build, analyse; re-anchor where the final point leaves the measured responses
+    def reanchored(model, params, out, stage):
+        new_ref = dict(model.theta_ref)
+        for p in model.base_names:
+            new_ref[p] = float("%.4g" % params[p])
+        log("%s beyond the model's measured responses (%s): re-anchoring there"
+            % ("calibrated point" if stage == "base" else "final point",
+               ", ".join("%s %+.1f steps" % kv for kv in out.items())))
+        reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out,
+                          "stage": stage})
+        return new_ref
+
     reanchors = []
     ref = dict(theta_ref)
-    for it in range(max_reanchor + 1):
+    # --- settle the anchor on the base responses alone: the effect responses (about half of
+    # the model's runs) are built once, where the calibration lands, not at every anchor
+    while len(reanchors) < max_reanchor:
+        mb = build(ref, "base")
+        cal_params = calibrated(mb)[2].params
+        out = mb.outside(cal_params)
+        if not out:
+            break
+        ref = reanchored(mb, cal_params, out, "base")
+    # --- build, analyse; re-anchor where the final point (with its effects) leaves the
+    # measured responses
+    while True:
         model = build(ref, "all")
         an = analyse(model)
         out = model.outside(an["final"].params)
-        if not out or it == max_reanchor:
+        if not out or len(reanchors) >= max_reanchor:
             break
-        new_ref = dict(model.theta_ref)
-        for p in model.base_names:
-            new_ref[p] = float("%.4g" % an["final"].params[p])
-        log("final point beyond the model's measured responses (%s): re-anchoring there"
-            % ", ".join("%s %+.1f steps" % kv for kv in out.items()))
-        reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out})
-        ref = new_ref
+        ref = reanchored(model, an["final"].params, out, "all")
     obs, cal, nb, stair, fs = an["obs"], an["cal"], an["nb"], an["stair"], an["fs"]
     added, final, theta = an["added"], an["final"], an["theta"]
     diags, step_rows = fs["diagnoses"], fs["steps"]

@@ -408,6 +408,15 @@ def test_loop_reanchors_where_the_answer_lies_beyond_the_model(tmp_path):
     re = res.info["reanchors"]
     assert len(re) >= 1
     assert re[0]["to"]["amplitude_m"] > re[0]["from"]["amplitude_m"]
+    # the calibrated point moved the anchor before any effect response was built: the effect
+    # runs exist at the anchors of whole-model builds only (one plus one per 'all' re-anchoring)
+    assert re[0]["stage"] == "base"
+    strokes = set()
+    for meta in (tmp_path / "runs").glob("*/meta.json"):
+        cfg = json.loads(meta.read_text())["config"]
+        if cfg.get("effects"):
+            strokes.add(cfg["amplitude_m"])
+    assert len(strokes) == 1 + sum(r["stage"] == "all" for r in re)
     par = res.parameters.set_index("name")
     fit, se = float(par.loc["amplitude_m", "value"]), float(par.loc["amplitude_m", "se"])
     anchor = res.info["anchor"]["amplitude_m"]
