@@ -12,9 +12,10 @@
 3. **Calibrate** the base parameters (restitution, stroke, the frictions where they move the
    observables) on the dataset. Where the calibrated point lies beyond the model's measured
    responses, **re-anchor** there (new anchor and responses) and calibrate again. The anchor
-   is settled on the base responses alone before the effect responses (about half of the
-   model's runs) are built, so these are built once; a final point that leaves the responses
-   after effects were added re-anchors the whole model.
+   is settled on a scout build (anchor and base responses with fewer seeds, the first seeds
+   of the whole build's) before the effect responses (about half of the model's runs) are
+   built, so these are built once; a final point that leaves the responses after effects
+   were added re-anchors the whole model.
 4. **Diagnose and add, forward selection**: rank every candidate effect; when one is
    significant, add it (its strength becomes a fitted parameter beside the base ones) and
    diagnose again with the rest, until nothing more is significant (``--max-effects``).
@@ -74,6 +75,10 @@ from analysis.twin_model import (CANDIDATES, candidates, dataset_observations,
 MAX_EFFECTS = 3
 #: re-anchorings of the model at a calibrated point beyond its measured responses
 MAX_REANCHOR = 2
+#: the scout build that settles the anchor before the whole model is built: anchor seeds and
+#: seeds per response level (the first seeds of the whole build's, so none is wasted when the
+#: anchor stays)
+SCOUT_REPLICATES, SCOUT_DIFF_REPLICATES = 2, 1
 #: twin-corrected refits after the first twin rerun (each moved point gets its own rerun)
 MAX_POLISH = 2
 #: a twin-corrected refit that moves no parameter by more than this many of its standard
@@ -550,16 +555,21 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
     def budget_left():
         return None if budget_runs is None else budget_runs - used["new"]
 
-    def build(ref, stage):
+    def build(ref, stage, scout=False):
+        reps = dict(replicates=replicates, diff_replicates=diff_replicates)
+        if scout:
+            reps = dict(replicates=min(SCOUT_REPLICATES, replicates),
+                        diff_replicates=min(SCOUT_DIFF_REPLICATES, diff_replicates),
+                        noisy_replicates=min(SCOUT_DIFF_REPLICATES, diff_replicates))
         m = OpenTwinModel(dataset.conditions, yield_times_of(dataset), theta_ref=ref,
                           base=tuple(base or DEFAULT_BASE),
                           velocity_frame=dataset.velocity_frame, flight_conditions=fl_ids,
-                          replicates=replicates, diff_replicates=diff_replicates,
                           base_config=base_config, budget_runs=budget_left(),
-                          effect_names=effect_names, **sweep_kw)
+                          effect_names=effect_names, **reps, **sweep_kw)
         ps = m.plan_summary(stage)
         log("model at %s (%s): %d runs, %d cached, %d new, about %.0f min on %d worker(s)"
-            % (_fmt_theta(ref), "anchor + base responses" if stage == "base" else
+            % (_fmt_theta(ref), "scout: anchor + base responses, fewer seeds" if scout else
+               "anchor + base responses" if stage == "base" else
                "+ effect responses", ps["runs"], ps["cached"], ps["new"], ps["est_wall_s"] / 60,
                workers))
         m.fit(stage)
@@ -652,10 +662,11 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
 
     reanchors = []
     ref = dict(theta_ref)
-    # --- settle the anchor on the base responses alone: the effect responses (about half of
-    # the model's runs) are built once, where the calibration lands, not at every anchor
+    # --- settle the anchor on a scout build (anchor and base responses with fewer seeds, the
+    # first seeds of the whole build's): the effect responses (about half of the model's runs)
+    # and the rest of the seeds are built once, where the calibration lands
     while len(reanchors) < max_reanchor:
-        mb = build(ref, "base")
+        mb = build(ref, "base", scout=True)
         cal_params = calibrated(mb)[2].params
         out = mb.outside(cal_params)
         if not out:

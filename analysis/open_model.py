@@ -166,6 +166,8 @@ class OpenTwinModel(TwinModel):
     flight_conditions : condition ids with a jar track (impact observables predicted there)
     replicates : anchor seeds per condition
     diff_replicates : seeds per base / effect level (the anchor's first seeds: common starts)
+    noisy_replicates : seeds per level of the :data:`NOISY_BASE` parameters (default
+        ``replicates``; the loop's scout build uses fewer)
     effect_names : DEM candidates to build (default: all of the catalog)
     base_config : dict - further run-config keys of every run (e.g. record_s, a jar STL)
     runner, workers, backend, runs_dir, progress, scheduler, slurm : passed to
@@ -182,7 +184,7 @@ class OpenTwinModel(TwinModel):
 
     def __init__(self, conditions, yield_times_min=None, theta_ref=None, base=DEFAULT_BASE,
                  velocity_frame="lab", flight_conditions=(), replicates=3, diff_replicates=2,
-                 effect_names=None, base_config=None, runner=None, workers=2, backend="local",
+                 noisy_replicates=None, effect_names=None, base_config=None, runner=None, workers=2, backend="local",
                  runs_dir=None, progress=True, scheduler=None, slurm=None, budget_runs=None,
                  seed0=0, known_runs="auto", priors="auto"):
         if velocity_frame not in ("lab", "jar"):
@@ -206,6 +208,10 @@ class OpenTwinModel(TwinModel):
         self.flight_conditions = [c for c in cids if c in set(flight_conditions or ())]
         self.replicates = int(replicates)
         self.diff_replicates = min(int(diff_replicates), int(replicates))
+        self.noisy_replicates = (self.replicates if noisy_replicates is None
+                                 else min(int(noisy_replicates), self.replicates))
+        if self.noisy_replicates < 1:
+            raise ValueError("noisy_replicates must be >= 1")
         dem = candidates("dem")
         names = (list(effect_names) if effect_names is not None
                  else [c.name for c in CANDIDATES if c.kind == "dem"])
@@ -230,9 +236,9 @@ class OpenTwinModel(TwinModel):
         return bool(np.isfinite(a))
 
     def base_seeds(self, p) -> int:
-        """Seeds per response level of base parameter ``p`` (:data:`NOISY_BASE`: all
-        ``replicates``; the others ``diff_replicates``)."""
-        return self.replicates if p in NOISY_BASE else self.diff_replicates
+        """Seeds per response level of base parameter ``p`` (:data:`NOISY_BASE`:
+        ``noisy_replicates``, by default all ``replicates``; the others ``diff_replicates``)."""
+        return self.noisy_replicates if p in NOISY_BASE else self.diff_replicates
 
     def plan(self, stage="all") -> pd.DataFrame:
         """Every run the model needs: role ('anchor', 'base', 'effect'), name, value (parameter

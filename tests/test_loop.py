@@ -87,6 +87,23 @@ def _model(conds, runs_dir, **kw):
                          runs_dir=runs_dir, progress=False, **kw)
 
 
+def test_scout_build_is_the_first_seeds_of_the_whole_build(tmp_path):
+    """The loop's scout (anchor 2 seeds, every response level 1 seed) plans only runs the whole
+    build plans too: when the anchor stays, the scout costs no run."""
+    from analysis.sweep import prepare_configs
+    whole = _model(NEW_CONDITIONS, tmp_path).plan("all")
+    scout = _model(NEW_CONDITIONS, tmp_path, replicates=loop.SCOUT_REPLICATES,
+                   diff_replicates=loop.SCOUT_DIFF_REPLICATES,
+                   noisy_replicates=loop.SCOUT_DIFF_REPLICATES).plan("base")
+    _, ids_whole = prepare_configs(list(whole["config"]))
+    _, ids_scout = prepare_configs(list(scout["config"]))
+    assert set(ids_scout) < set(ids_whole)
+    # 4 conditions x (2 anchor + 4 base parameters x 2 sides x 1 seed)
+    assert len(set(ids_scout)) == 4 * (2 + 8)
+    with pytest.raises(ValueError, match="noisy_replicates"):
+        _model(NEW_CONDITIONS, tmp_path, noisy_replicates=0)
+
+
 def test_open_model_builds_at_new_conditions_and_resumes(fake_runs):
     m = _model(NEW_CONDITIONS, fake_runs)
     ps = m.plan_summary()
