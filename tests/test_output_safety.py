@@ -99,7 +99,8 @@ def test_own_output_is_replaced_and_marked(tmp_path):
 # --------------------------------------------------------------------------------------------
 def _stages():
     from analysis import calibrate, hidden_suite, kinetics, measurements, predict, report
-    from analysis import sensitivity, surrogate, twin_model, yield_data
+    from analysis import sensitivity, surrogate, twin_model, yield_data, yield_dataset
+    from analysis.kinetics import cli as kinetics_cli
     from analysis.studies import paper_diagnosis
     yd = yield_data
     # stage: (module, argv(out, ctx), [(module, name) of its work: must not run],
@@ -109,7 +110,7 @@ def _stages():
                       [(calibrate, "load_measurements"), (calibrate, "calibrate")],
                       lambda c: c["ds"]),
         "kinetics": (kinetics, lambda o, c: ["--yields", str(c["yields"]), "--out", o],
-                     [(yd, "load_yield_dataset"), (kinetics, "fit_kinetics")],
+                     [(yield_dataset, "load_yield_dataset"), (kinetics_cli, "fit_kinetics")],
                      lambda c: c["yields"]),
         "predict": (predict, lambda o, c: ["--compare", "--yields", str(c["yields"]), "--out", o],
                     [(yd, "load_yield_dataset"), (predict, "load_kinetics"),

@@ -1,4 +1,5 @@
-"""Plots of the kinetics stage (paper Figures 9-11). Functions take results, ax=None, return ax."""
+"""Plots of the kinetics stage (paper Figures 9-11). The plot functions take results, ax=None,
+return ax; :func:`write_kinetics_figures` draws all three into a folder (the kinetics CLI's)."""
 from __future__ import annotations
 
 import numpy as np
@@ -42,7 +43,7 @@ def plot_yield_vs_time(data: pd.DataFrame, curves: dict | None = None, ax=None):
     ----------
     data : DataFrame - condition_id, frequency_hz, time_min, yield_pct
     curves : dict condition_id -> (time_min array, yield_pct array), optional - the model's
-        curves, computed by the caller (analysis.kinetics.model_curves)
+        curves, computed by the caller (:func:`analysis.kinetics.prediction.model_curves`)
     """
     ax = _ax(ax)
     for i, (cid, grp) in enumerate(data.groupby("condition_id", sort=False)):
@@ -98,3 +99,40 @@ def plot_yield_vs_energy(data: pd.DataFrame, fit, ax=None, alpha: float = 0.05):
     ax.set_ylabel("monomer yield X [%]")
     ax.legend(fontsize=7, loc="upper left")
     return ax
+
+
+def write_kinetics_figures(folder, fit, data: pd.DataFrame, inputs: pd.DataFrame, curves: dict,
+                           synthetic: bool) -> None:
+    """Figures 9-11 of the kinetics stage as PNG files in ``folder``: fig09_ekin.png,
+    fig10_yield_time.png, fig11_yield_energy.png (130 dpi, Agg backend).
+
+    Parameters
+    ----------
+    folder : Path - existing output folder
+    fit : KineticsFit
+    data : DataFrame - yields with energy: condition_id, frequency_hz, time_min, yield_pct,
+        e_tot_j
+    inputs : DataFrame - energy inputs (frequency_hz, ball_diameter_m, e_kin_j, source, ...)
+    curves : dict condition_id -> (time_min array, yield_pct array) - the model's curves
+        (:func:`analysis.kinetics.prediction.model_curves`)
+    synthetic : bool - the yields are SYNTHETIC (the yield figures' titles say so)
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tag = "SYNTHETIC yields - " if synthetic else ""
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    plot_ekin_map(inputs, ax=ax)
+    ax.set_title("E_kin vs frequency and ball size\n(" + inputs["source"].iloc[0][:70] + ")", fontsize=8)
+    fig.tight_layout(); fig.savefig(folder / "fig09_ekin.png", dpi=130); plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    plot_yield_vs_time(data, curves=curves, ax=ax)
+    ax.set_title(tag + "yield vs milling time (20 mm ball)", fontsize=9)
+    fig.tight_layout(); fig.savefig(folder / "fig10_yield_time.png", dpi=130); plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    plot_yield_vs_energy(data, fit, ax=ax)
+    ax.set_title(tag + "yield vs cumulative energy, powder line with 95 % bands", fontsize=9)
+    fig.tight_layout(); fig.savefig(folder / "fig11_yield_energy.png", dpi=130); plt.close(fig)
