@@ -520,10 +520,7 @@ def write_results(res, out_dir, measurements_name="", protected=()):
 
 
 def _write_results(res, tmp, measurements_name):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from analysis.plotting.calibration_plots import plot_pairs, plot_parity
+    from analysis.plotting.calibration_plots import write_calibration_figures
 
     res.to_frame().to_csv(tmp / "parameters.csv", float_format="%.6g")
     res.comparison.to_csv(tmp / "table3_comparison.csv", index=False, float_format="%.5g")
@@ -541,14 +538,7 @@ def _write_results(res, tmp, measurements_name):
                "motion_modes": (res.design["motion_mode"].astype(str).value_counts().to_dict()
                                 if "motion_mode" in res.design else {})}
     (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
-    fig, axes = plt.subplots(1, 2, figsize=(9, 4.2))
-    plot_parity(res.comparison, axes=axes)
-    fig.tight_layout()
-    fig.savefig(tmp / "parity.png", dpi=130)
-    plt.close(fig)
-    axes = plot_pairs(res.samples, list(res.params.index), bounds=res.bounds)
-    axes[0, 0].figure.savefig(tmp / "posterior_pairs.png", dpi=110)
-    plt.close(axes[0, 0].figure)
+    write_calibration_figures(res, tmp)
 
 
 def main(argv=None):

@@ -515,37 +515,14 @@ def markdown_page(cmp: Comparison, dataset: Dataset, figures=()) -> str:
 def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = True) -> Path:
     """Write comparison.csv, figures and comparison.md into ``out_dir`` atomically; an
     ``out_dir`` that is not ours to replace, or is / holds / lies in the dataset, is refused."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from analysis.plotting import compare_plots
+    from analysis.plotting.compare_plots import write_compare_figures
 
     out_dir = Path(out_dir)
     protected = [dataset.path] if dataset.path is not None else []
     tmp = staging_dir(out_dir, protected)  # makes the parent folder too
     try:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
-        figs = []
-        fig, ax = plt.subplots(figsize=compare_plots.heatmap_figsize(cmp))
-        compare_plots.plot_residual_heatmap(cmp, ax=ax, dataset=dataset)
-        fig.tight_layout()
-        fig.savefig(tmp / "heatmap.png", dpi=120)
-        plt.close(fig)
-        figs.append("heatmap.png")
-        if cmp.phase is not None:
-            fig, ax = plt.subplots(figsize=(6, 4))
-            compare_plots.plot_phase_folded(cmp, ax=ax, synthetic=dataset.synthetic)
-            fig.tight_layout()
-            fig.savefig(tmp / "phase.png", dpi=120)
-            plt.close(fig)
-            figs.append("phase.png")
-        if (cmp.table["observable"] == "yield_pct").any():
-            fig, ax = plt.subplots(figsize=(6, 4))
-            compare_plots.plot_yield_residuals(cmp, ax=ax, synthetic=dataset.synthetic)
-            fig.tight_layout()
-            fig.savefig(tmp / "yields.png", dpi=120)
-            plt.close(fig)
-            figs.append("yields.png")
+        figs = write_compare_figures(cmp, dataset, tmp)
         (tmp / "comparison.md").write_text(markdown_page(cmp, dataset, figs))
         if out_dir.exists() and not overwrite:
             raise FileExistsError(out_dir)

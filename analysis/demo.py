@@ -111,28 +111,6 @@ def summarize_runs(conditions, configs, sweep_table):
     return pd.DataFrame(rows)
 
 
-def plot_demo(table, ax=None):
-    """v_mean over frequency: measured, the paper's DEM and this twin (mean +- sd)."""
-    import matplotlib.pyplot as plt
-    if ax is None:
-        ax = plt.gca()
-    colors = {17.5: "tab:green", 20.6: "tab:blue"}
-    for d, g in table.groupby("ball_diameter_mm"):
-        g = g.sort_values("frequency_hz")
-        c = colors.get(d, "k")
-        ax.plot(g["frequency_hz"], g["v_mean_measured_m_s"], "s", color=c, ms=7,
-                label="measured, %.1f mm" % d)
-        ax.plot(g["frequency_hz"], g["v_mean_dem_paper_m_s"], "^", color=c, mfc="none",
-                label="paper DEM (EDEM), %.1f mm" % d)
-        ax.errorbar(g["frequency_hz"], g["v_mean_twin_observed_m_s"], yerr=g["v_mean_twin_sd_m_s"],
-                    fmt="o-", color=c, alpha=0.8, capsize=3, label="this twin, %.1f mm" % d)
-    ax.set_xlabel("frequency f [Hz]")
-    ax.set_ylabel("mean ball speed v_mean [m/s]")
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
-    return ax
-
-
 def write_page(table, out_dir, meta, extra=()):
     cols = ["condition_id", "v_mean_measured_m_s", "v_mean_twin_observed_m_s",
             "v_mean_twin_sd_m_s", "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz",
@@ -196,12 +174,10 @@ def main(argv=None):
         print("analysis.demo: error: replicates, workers and record-s must be positive",
               file=sys.stderr)
         return 2
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import shutil
     from pathlib import Path
     from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
+    from analysis.plotting.demo_plots import write_demo_figure
     from analysis.sweep import run_sweep
     try:
         check_out_dir(a.out)
@@ -257,12 +233,7 @@ def main(argv=None):
     try:
         table.to_csv(tmp / "comparison.csv", index=False, float_format="%.4g")
         cal.to_csv(tmp / "calibrated.csv", index=False, float_format="%.4g")
-        fig, ax = plt.subplots(figsize=(6, 4.2))
-        plot_demo(table, ax)
-        ax.set_title("MM400 twin vs Table 3 (paper contact parameters)")
-        fig.tight_layout()
-        fig.savefig(tmp / "demo.png", dpi=120)
-        plt.close(fig)
+        write_demo_figure(table, tmp / "demo.png")
         dflt = twin_config.default_config()
         amp = (paper_base or {}).get("amplitude_m", dflt["amplitude_m"])
         write_page(table, tmp, {"amplitude_m": amp, "dt_s": dflt["dt_s"],

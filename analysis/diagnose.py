@@ -1032,22 +1032,15 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
     import shutil
     from pathlib import Path
 
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from analysis.plotting import compare_plots
+    from analysis.plotting.diagnose_plots import write_diagnosis_figures
 
     out_dir = Path(out_dir)
     tmp = staging_dir(out_dir, protected)  # makes the parent folder too
     try:
         diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
         diag.structure.to_csv(tmp / "structure.csv", index=False)
-        fig, ax = plt.subplots(figsize=compare_plots.ranking_figsize(diag))
-        compare_plots.plot_effect_ranking(diag, ax=ax, dataset_name=dataset_name,
-                                          synthetic=synthetic)
-        fig.tight_layout()
-        fig.savefig(tmp / "ranking.png", dpi=120)
-        plt.close(fig)
+        write_diagnosis_figures(diag, tmp, added.staircase if added is not None else None,
+                                dataset_name=dataset_name, synthetic=synthetic)
         cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength",
                 "strength_se", "footprint", "absorbed_frac", "identifiable", "significant"]
         md = ["# Which effect is missing? %s%s" % (dataset_name,
@@ -1064,11 +1057,6 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
         if added is not None:
             added.staircase.to_csv(tmp / "staircase.csv", index=False)
             added.to_frame().reset_index().to_csv(tmp / "before_after.csv", index=False)
-            fig, ax = plt.subplots(figsize=(5, 3.5))
-            compare_plots.plot_chi2_staircase(added.staircase, ax=ax, synthetic=synthetic)
-            fig.tight_layout()
-            fig.savefig(tmp / "staircase.png", dpi=120)
-            plt.close(fig)
             md += ["## Adding %s" % added.effect, "", added.summary(), "",
                    "![staircase](staircase.png)", ""]
         (tmp / "diagnosis.md").write_text("\n".join(md))

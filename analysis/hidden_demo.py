@@ -188,10 +188,7 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
     from analysis.diagnose import add_effect, diagnose, write_diagnosis
     from analysis.hidden import make_hidden_dataset
     from analysis.measurements import load_dataset
-    from analysis.plotting import compare_plots
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from analysis.plotting.hidden_plots import write_overview_figure
 
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
@@ -283,16 +280,7 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
     if verify_row:
         stair = pd.concat([stair, pd.DataFrame([verify_row])], ignore_index=True)
     stair.to_csv(out_dir / "staircase.csv", index=False)
-    w, h = compare_plots.heatmap_figsize(cmp0)
-    fig, axes = plt.subplots(1, 2, figsize=(w + 5.0, max(h, 4.0)),
-                             gridspec_kw={"width_ratios": [w, 5.0]})
-    compare_plots.plot_residual_heatmap(cmp0, ax=axes[0], dataset=ds,
-                                        title="before: calibrated twin, no effect")
-    compare_plots.plot_chi2_staircase(stair, ax=axes[1], title="chi2/dof by stage",
-                                      synthetic=ds.synthetic)
-    fig.tight_layout()
-    fig.savefig(out_dir / "overview.png", dpi=110)
-    plt.close(fig)
+    write_overview_figure(cmp0, stair, ds, out_dir / "overview.png")
     times["total_s"] = time.perf_counter() - t_start
     summary = {"reveal": reveal, "staircase": stair.to_dict("records"), "times": times,
                "verdict": diag.verdict}

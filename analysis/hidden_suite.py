@@ -248,21 +248,11 @@ def per_effect(rows):
                  chi2_dof_after_add=("chi2_dof_after_add", "median")).reset_index()
 
 
-def write_report(rows, out_dir=SUITE_DIR, synthetic: bool | None = None):
-    """summary.json, per_effect.csv, confusion.png and README.md (the report page).
+def confusion_matrix(rows) -> pd.DataFrame:
+    """Share of each hidden effect's datasets by what diagnose reported.
 
-    ``synthetic``: mark the figure SYNTHETIC; None reads the rows' ``synthetic`` column (each
-    dataset's own flag); rows written before that column existed count as synthetic, since the
-    suite only scores datasets made by :mod:`analysis.hidden`, which are synthetic."""
-    from analysis.plotting.marks import synthetic_title
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    out_dir = Path(out_dir)
-    summ = summarise(rows)
-    pe = per_effect(rows)
-    (out_dir / "summary.json").write_text(json.dumps(summ, indent=1))
-    pe.to_csv(out_dir / "per_effect.csv", index=False)
+    Rows: the hidden effects in the order of ``rows``; columns: those, then any other reported
+    effect (sorted), then 'nothing'; values: fraction of the row's datasets [-]."""
     truths = list(dict.fromkeys(rows["true_effect"]))
     said = [n for n in truths] + sorted(set(rows["reported"].replace("", "nothing"))
                                         - set(truths) - {"nothing"}) + ["nothing"]
@@ -271,23 +261,26 @@ def write_report(rows, out_dir=SUITE_DIR, synthetic: bool | None = None):
         j = said.index(r.reported if r.reported else "nothing")
         M[truths.index(r.true_effect), j] += 1
     M /= np.maximum(M.sum(1, keepdims=True), 1)
-    fig, ax = plt.subplots(figsize=(8, 5))
-    ax.imshow(M, cmap="Blues", vmin=0, vmax=1)
-    ax.set_xticks(range(len(said)), said, rotation=40, ha="right", fontsize=7)
-    ax.set_yticks(range(len(truths)), truths, fontsize=7)
-    for i in range(len(truths)):
-        for j in range(len(said)):
-            if M[i, j] > 0:
-                ax.text(j, i, "%.0f%%" % (100 * M[i, j]), ha="center", va="center", fontsize=7)
-    ax.set_xlabel("reported by diagnose")
-    ax.set_ylabel("hidden in the data")
+    return pd.DataFrame(M, index=truths, columns=said)
+
+
+def write_report(rows, out_dir=SUITE_DIR, synthetic: bool | None = None):
+    """summary.json, per_effect.csv, confusion.png and README.md (the report page).
+
+    ``synthetic``: mark the figure SYNTHETIC; None reads the rows' ``synthetic`` column (each
+    dataset's own flag); rows written before that column existed count as synthetic, since the
+    suite only scores datasets made by :mod:`analysis.hidden`, which are synthetic."""
+    from analysis.plotting.hidden_plots import write_confusion_figure
+    out_dir = Path(out_dir)
+    summ = summarise(rows)
+    pe = per_effect(rows)
+    (out_dir / "summary.json").write_text(json.dumps(summ, indent=1))
+    pe.to_csv(out_dir / "per_effect.csv", index=False)
     if synthetic is None:
         synthetic = (bool(rows["synthetic"].fillna(True).astype(bool).any())
                      if "synthetic" in rows else True)
-    ax.set_title(synthetic_title("Hidden-effect suite: what diagnose reports", synthetic))
-    fig.tight_layout()
-    fig.savefig(out_dir / "confusion.png", dpi=120)
-    plt.close(fig)
+    write_confusion_figure(confusion_matrix(rows), out_dir / "confusion.png",
+                           synthetic=synthetic)
     lines = ["# Hidden-effect suite", "",
              "Datasets made by the real twin at the calibrated parameters with one catalog effect "
              "hidden (or none), diagnosed blind with `analysis.twin_model` (see "

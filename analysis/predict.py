@@ -437,6 +437,7 @@ def _compare_inputs(args):
 def _run_compare(args) -> Path:
     from analysis import yield_data
     from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.plotting.surrogate_plots import write_yield_parity_figure
 
     protected = _compare_inputs(args)
     check_out_dir(args.out, protected)
@@ -461,25 +462,9 @@ def _run_compare(args) -> Path:
              "yields_synthetic": bool(ds.synthetic),
              "twin_outputs": str(twin["source"].iloc[0]), "surrogate": bundle.source,
              "kinetics": kfit.source}, indent=1))
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from analysis.plotting import surrogate_plots as sp
-        fig, axes = plt.subplots(1, 2, figsize=(8, 3.8))
-        sp.plot_yield_parity(table, ax=axes[0], reference="yield_twin_pct",
-                             kinds=list(bundle.models))
-        axes[0].set_title("surrogate-MC vs twin-MC yield", fontsize=8)
-        sp.plot_yield_parity(table, ax=axes[1], reference="yield_measured_pct",
-                             kinds=["twin"] + list(bundle.models),
-                             reference_label=("SYNTHETIC yield [%] (stands in for measured)"
-                                              if ds.synthetic else "measured yield [%]"),
-                             synthetic=ds.synthetic)
-        axes[1].set_title("SYNTHETIC yields vs predicted yield" if ds.synthetic
-                          else "measured vs predicted yield", fontsize=8)
-        fig.suptitle(("SYNTHETIC yields; " if ds.synthetic else "") + "twin outputs: "
-                     + str(twin["source"].iloc[0])[:60] + "; surrogate: " + bundle.source[:40],
-                     fontsize=7)
-        fig.tight_layout(); fig.savefig(tmp / "fig14_yield_parity.png", dpi=120); plt.close(fig)
+        write_yield_parity_figure(table, tmp / "fig14_yield_parity.png", list(bundle.models),
+                                  twin_source=str(twin["source"].iloc[0]),
+                                  surrogate_source=bundle.source, synthetic=ds.synthetic)
         publish_dir(tmp, args.out, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -291,12 +291,9 @@ def main(argv=None):
                    help="random seed of the emulator fit and the Sobol sampling [-] "
                         "(default %(default)s)")
     args = p.parse_args(argv)
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
     from analysis.emulator import GPEmulator
-    from analysis.plotting.calibration_plots import plot_figure8, plot_sobol
+    from analysis.plotting.calibration_plots import write_sensitivity_figures
     protected = [args.runs_dir]          # the twin's run cache is never an output
     try:
         check_out_dir(args.out, protected)   # before any twin run
@@ -320,14 +317,8 @@ def main(argv=None):
             study.summary.to_csv(tmp / "figure8_grid.csv", index=False, float_format="%.6g")
             sob.to_frame().to_csv(tmp / "sobol_v_mean.csv", float_format="%.5g")
             em.loo_.to_csv(tmp / "emulator_loo.csv", float_format="%.5g")
-            axes = plot_figure8(study.summary, study.target_m_s, study.tol_m_s)
-            axes[0].figure.tight_layout()
-            axes[0].figure.savefig(tmp / "figure8.png", dpi=130)
-            plt.close(axes[0].figure)
-            ax = plot_sobol(sob.to_frame())
-            ax.figure.tight_layout()
-            ax.figure.savefig(tmp / "sobol_v_mean.png", dpi=130)
-            plt.close(ax.figure)
+            write_sensitivity_figures(study.summary, study.target_m_s, study.tol_m_s,
+                                      sob.to_frame(), tmp)
             publish_dir(tmp, out, protected)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -728,6 +728,7 @@ def _inputs(args):
 
 def run(args) -> Path:
     from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.plotting.surrogate_plots import write_surrogate_figures
 
     protected = _inputs(args)
     check_out_dir(args.out, protected)
@@ -786,33 +787,13 @@ def run(args) -> Path:
                  "domain_min": bundle.domain.min_.tolist(), "domain_max": bundle.domain.max_.tolist()},
                 indent=1))
         bundle.save(tmp / "surrogate.joblib")
-        _figures(tmp, results, lc, source)
+        write_surrogate_figures(tmp, {k: r.predictions for k, r in results.items()}, lc,
+                                source, outputs=OUTPUTS)
         publish_dir(tmp, args.out, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return args.out
-
-
-def _figures(folder, results, lc, source):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from analysis.plotting import surrogate_plots as sp
-
-    kinds = list(results)
-    fig, axes = plt.subplots(2, len(kinds), figsize=(3.4 * len(kinds), 6.4), squeeze=False)
-    for i, k in enumerate(kinds):
-        for j, o in enumerate(OUTPUTS):
-            sp.plot_parity(results[k].predictions, o, ax=axes[j, i], title=f"{k.upper()} {o}")
-    fig.suptitle(("SYNTHETIC - " if "SYNTHETIC" in source else "") + "parity: " + source[:80], fontsize=8)
-    fig.tight_layout(); fig.savefig(folder / "fig13_parity.png", dpi=120); plt.close(fig)
-    if lc is not None:
-        fig, axes = plt.subplots(1, 2, figsize=(8, 3.4))
-        for j, o in enumerate(OUTPUTS):
-            sp.plot_learning_curve(lc, o, ax=axes[j])
-        fig.suptitle(("SYNTHETIC - " if "SYNTHETIC" in source else "") + "learning curve", fontsize=9)
-        fig.tight_layout(); fig.savefig(folder / "fig_learning_curve.png", dpi=120); plt.close(fig)
 
 
 def main(argv=None) -> int:

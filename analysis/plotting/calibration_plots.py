@@ -1,11 +1,16 @@
 """Figures of calibration and sensitivity: parity, posterior pairs, Figure-8 grid, Sobol bars.
 
-Functions take result tables and ``ax``/``axes`` (created when None) and return the axes; they
-never save files (the CLIs of analysis.calibrate and analysis.sensitivity do).
+The ``plot_*`` functions take result tables and ``ax``/``axes`` (created when None) and return
+the axes; :func:`write_calibration_figures` and :func:`write_sensitivity_figures` draw the PNG
+files the CLIs of analysis.calibrate and analysis.sensitivity publish.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+
+from analysis.plotting.files import pyplot, save_png
 
 
 def _axes(ax, n=1, figsize=(5, 4)):
@@ -175,3 +180,53 @@ def plot_sobol(sobol_frame, ax=None):
     ax.set_ylabel("Sobol index")
     ax.legend(fontsize=8)
     return ax
+
+
+def write_calibration_figures(result, folder):
+    """parity.png and posterior_pairs.png of a calibration into ``folder``.
+
+    Parameters
+    ----------
+    result : CalibrationResult - uses comparison, samples, params (the names) and bounds
+    folder : path of an existing folder
+
+    Returns
+    -------
+    list of Path - the files written
+    """
+    plt = pyplot()
+    folder = Path(folder)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4.2))
+    plot_parity(result.comparison, axes=axes)
+    fig.tight_layout()
+    paths = [save_png(fig, folder / "parity.png", 130)]
+    axes = plot_pairs(result.samples, list(result.params.index), bounds=result.bounds)
+    paths.append(save_png(axes[0, 0].figure, folder / "posterior_pairs.png", 110))
+    return paths
+
+
+def write_sensitivity_figures(grid, target_m_s, tol_m_s, sobol_frame, folder):
+    """figure8.png (:func:`plot_figure8`) and sobol_v_mean.png (:func:`plot_sobol`) into
+    ``folder``.
+
+    Parameters
+    ----------
+    grid : DataFrame - GridStudy.summary
+    target_m_s : float - measured speed [m/s]
+    tol_m_s : float or None - half width of the "reproduces" band [m/s]
+    sobol_frame : DataFrame - SobolResult.to_frame()
+    folder : path of an existing folder
+
+    Returns
+    -------
+    list of Path - the files written
+    """
+    pyplot()
+    folder = Path(folder)
+    axes = plot_figure8(grid, target_m_s, tol_m_s)
+    axes[0].figure.tight_layout()
+    paths = [save_png(axes[0].figure, folder / "figure8.png", 130)]
+    ax = plot_sobol(sobol_frame)
+    ax.figure.tight_layout()
+    paths.append(save_png(ax.figure, folder / "sobol_v_mean.png", 130))
+    return paths

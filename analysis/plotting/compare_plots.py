@@ -1,9 +1,13 @@
-"""Figures of the comparison / diagnosis loop. Each function takes a result and ``ax=None`` and
-returns the axes; nothing here writes files (the CLIs do)."""
+"""Figures of the comparison / diagnosis loop. Each ``plot_*`` function takes a result and
+``ax=None`` and returns the axes; :func:`write_compare_figures` draws the PNG files of
+analysis.compare's report."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
+from analysis.plotting.files import pyplot, save_png
 from analysis.plotting.marks import (condition_label, fits_horizontally, is_synthetic,
                                      mark_synthetic, short_observable, synthetic_title)
 
@@ -241,3 +245,42 @@ def ranking_figsize(diagnosis):
     """(width, height) in inches for :func:`plot_effect_ranking`: 0.25 in per candidate plus
     the title, axis label and legend."""
     return (7.0, 2.4 + 0.25 * len(diagnosis.table))
+
+
+def write_compare_figures(comparison, dataset, folder) -> list:
+    """The figures of a comparison's report into ``folder``: heatmap.png
+    (:func:`plot_residual_heatmap`), phase.png when both sides have tracks
+    (:func:`plot_phase_folded`), yields.png when yields are compared
+    (:func:`plot_yield_residuals`).
+
+    Parameters
+    ----------
+    comparison : analysis.compare.Comparison
+    dataset : Dataset - the title's name and whether the data are synthetic
+    folder : path of an existing folder
+
+    Returns
+    -------
+    list of str - the names of the files written, in that order
+    """
+    plt = pyplot()
+    folder = Path(folder)
+    names = []
+    fig, ax = plt.subplots(figsize=heatmap_figsize(comparison))
+    plot_residual_heatmap(comparison, ax=ax, dataset=dataset)
+    fig.tight_layout()
+    save_png(fig, folder / "heatmap.png", 120)
+    names.append("heatmap.png")
+    if comparison.phase is not None:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        plot_phase_folded(comparison, ax=ax, synthetic=dataset.synthetic)
+        fig.tight_layout()
+        save_png(fig, folder / "phase.png", 120)
+        names.append("phase.png")
+    if (comparison.table["observable"] == "yield_pct").any():
+        fig, ax = plt.subplots(figsize=(6, 4))
+        plot_yield_residuals(comparison, ax=ax, synthetic=dataset.synthetic)
+        fig.tight_layout()
+        save_png(fig, folder / "yields.png", 120)
+        names.append("yields.png")
+    return names

@@ -1,9 +1,15 @@
-"""Plots of the surrogate stage (paper Figures 13 and 14). Functions take results, ax=None,
-return the axes."""
+"""Plots of the surrogate stage (paper Figures 13 and 14). The ``plot_*`` functions take
+results, ax=None, return the axes; :func:`write_surrogate_figures` and
+:func:`write_yield_parity_figure` draw the PNG files analysis.surrogate and analysis.predict
+publish."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from analysis.plotting.files import pyplot, save_png
 
 
 def _ax(ax):
@@ -80,3 +86,82 @@ def plot_yield_parity(table: pd.DataFrame, ax=None, reference: str = "yield_twin
         from analysis.plotting.marks import mark_synthetic
         mark_synthetic(ax)
     return ax
+
+
+def write_surrogate_figures(folder, predictions: dict, learning_curve, source: str,
+                            outputs=("v_mean_m_s", "f_col_hz")) -> list:
+    """fig13_parity.png (:func:`plot_parity`, one column per surrogate kind, one row per
+    output) and, with a learning curve, fig_learning_curve.png (:func:`plot_learning_curve`)
+    into ``folder``.
+
+    Parameters
+    ----------
+    folder : path of an existing folder
+    predictions : dict kind -> DataFrame - each kind's predictions (split, <output>,
+        <output>_pred)
+    learning_curve : DataFrame or None - output, kind, n_train, mape_pct
+    source : str - where the training data came from (the title; 'SYNTHETIC' in it marks
+        the figures)
+    outputs : the surrogate's outputs, one row of panels each
+
+    Returns
+    -------
+    list of Path - the files written
+    """
+    plt = pyplot()
+    folder = Path(folder)
+    kinds = list(predictions)
+    tag = "SYNTHETIC - " if "SYNTHETIC" in source else ""
+    fig, axes = plt.subplots(2, len(kinds), figsize=(3.4 * len(kinds), 6.4), squeeze=False)
+    for i, k in enumerate(kinds):
+        for j, o in enumerate(outputs):
+            plot_parity(predictions[k], o, ax=axes[j, i], title=f"{k.upper()} {o}")
+    fig.suptitle(tag + "parity: " + source[:80], fontsize=8)
+    fig.tight_layout()
+    paths = [save_png(fig, folder / "fig13_parity.png", 120)]
+    if learning_curve is not None:
+        fig, axes = plt.subplots(1, 2, figsize=(8, 3.4))
+        for j, o in enumerate(outputs):
+            plot_learning_curve(learning_curve, o, ax=axes[j])
+        fig.suptitle(tag + "learning curve", fontsize=9)
+        fig.tight_layout()
+        paths.append(save_png(fig, folder / "fig_learning_curve.png", 120))
+    return paths
+
+
+def write_yield_parity_figure(table: pd.DataFrame, path, surrogate_kinds, *,
+                              twin_source: str, surrogate_source: str,
+                              synthetic: bool = False):
+    """Figure 14 written to ``path`` (PNG): surrogate-based yields against the twin-output
+    yields (left) and every predicted yield against the measured - or SYNTHETIC - yields
+    (right), both by :func:`plot_yield_parity`.
+
+    Parameters
+    ----------
+    table : DataFrame - yield_twin_pct, yield_measured_pct, yield_<kind>_pct
+        (analysis.predict.compare_yield_sources)
+    surrogate_kinds : list of str - the surrogates compared (e.g. ['lr', 'rf', 'gp'])
+    twin_source, surrogate_source : str - where the twin outputs and the surrogate came from
+        (the title)
+    synthetic : bool - the reference yields are synthetic: SYNTHETIC labels and watermark
+
+    Returns
+    -------
+    path
+    """
+    plt = pyplot()
+    kinds = list(surrogate_kinds)
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.8))
+    plot_yield_parity(table, ax=axes[0], reference="yield_twin_pct", kinds=kinds)
+    axes[0].set_title("surrogate-MC vs twin-MC yield", fontsize=8)
+    plot_yield_parity(table, ax=axes[1], reference="yield_measured_pct",
+                      kinds=["twin"] + kinds,
+                      reference_label=("SYNTHETIC yield [%] (stands in for measured)"
+                                       if synthetic else "measured yield [%]"),
+                      synthetic=synthetic)
+    axes[1].set_title("SYNTHETIC yields vs predicted yield" if synthetic
+                      else "measured vs predicted yield", fontsize=8)
+    fig.suptitle(("SYNTHETIC yields; " if synthetic else "") + "twin outputs: "
+                 + twin_source[:60] + "; surrogate: " + surrogate_source[:40], fontsize=7)
+    fig.tight_layout()
+    return save_png(fig, path, 120)

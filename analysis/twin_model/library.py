@@ -235,31 +235,11 @@ def top_level(summ):
 
 
 def plot_library(summ, path):
-    """Bar chart: change of v_mean [%] per condition for every DEM effect at its signature
-    strength, with the anchor's +-2 se band."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    summ = top_level(summ)
-    labels = [c for c in summ["label"].unique() if c != "none"]
-    cids = list(summ.loc[summ["label"] == "none", "condition_id"])
-    a = summ[summ["label"] == "none"].set_index("condition_id")
-    rel_se = float(np.nanmean(a["v_sd_m_s"] / a["v_mean_m_s"])) / math.sqrt(a["n"].mean())
-    fig, ax = plt.subplots(figsize=(9, 4))
-    w = 0.8 / max(len(labels), 1)
-    x = np.arange(len(cids))
-    for i, lab in enumerate(labels):
-        d = summ[summ["label"] == lab].set_index("condition_id").loc[cids]
-        ax.bar(x + (i - (len(labels) - 1) / 2) * w, d["dv_pct"], w, label=lab)
-    band = 2 * 100 * rel_se * math.sqrt(2)
-    ax.axhspan(-band, band, color="0.85", zorder=0, label="+-2 se of a difference")
-    ax.set_xticks(x, cids, rotation=30, ha="right")
-    ax.set_ylabel("change of v_mean [%]")
-    ax.set_title("Effect signatures at the calibrated parameters (signature strengths)")
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    """Write the library's figure to ``path`` (PNG): change of v_mean [%] per condition for
+    every DEM effect at its signature strength, with the anchor's +-2 se band (drawn by
+    :func:`analysis.plotting.signature_plots.write_signatures_figure`)."""
+    from analysis.plotting.signature_plots import write_signatures_figure
+    write_signatures_figure(top_level(summ), path)
 
 
 def write_page(summ, meta, folder):
