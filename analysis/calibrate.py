@@ -60,21 +60,11 @@ from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR
 from analysis.emulator import GPEmulator
 from analysis.measurements import DatasetError as MeasurementError
 from analysis.measurements import load_dataset
+# calibrated parameters and their prior bounds (CALIBRATED), the apparatus parameters a
+# calibration may free (APPARATUS), every parameter ``--free NAME[=LO:HI]`` accepts (PRIORS):
+# declared in analysis.parameter_space
+from analysis.parameter_space import APPARATUS, CALIBRATED, PRIORS
 
-#: calibrated parameters and their prior bounds (Table 2 bounds; amplitude from the mill's
-#: stroke, not stated in the paper)
-CALIBRATED = {"restitution": (0.1, 0.7), "static_friction": (0.3, 0.7),
-              "rolling_friction": (0.1, 0.5), "amplitude_m": (0.010, 0.016)}
-#: physical prior ranges of the apparatus parameters a calibration may free (the MM400 25 mL
-#: jar; docs/apparatus.md says where each range comes from). The twin's run config accepts wider
-#: values (yade_scripts/twin_config.py); these are what a calibration may claim.
-APPARATUS = {"amplitude_m": (0.010, 0.016),
-             "jar_inner_diameter_m": (0.025, 0.032),
-             "jar_volume_m3": (22e-6, 28e-6),
-             "jar_inner_length_m": (0.036, 0.056),
-             "jar_fillet_radius_m": (0.002, 0.0115)}
-#: every parameter a calibration can free, with its prior range (``--free NAME[=LO:HI]``)
-PRIORS = {**CALIBRATED, **APPARATUS}
 OUTPUTS = ("v_mean_m_s", "f_col_hz")
 CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
 

@@ -941,10 +941,7 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
 
 def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
     """Write the loop's folder atomically (see the module docstring for the files)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from analysis.plotting import compare_plots
+    from analysis.plotting.diagnose_plots import write_loop_figures
 
     out_dir = Path(out_dir)
     tmp = staging_dir(out_dir, protected)
@@ -965,18 +962,8 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
         info = dict(res.info, status=res.status, verdict=res.verdict,
                     effects={k: {"strength": s, "se": se} for k, (s, se) in res.effects.items()})
         (tmp / "loop.json").write_text(json.dumps(info, indent=1, default=_json))
-        fig, ax = plt.subplots(figsize=(5.5, 3.5))
-        compare_plots.plot_chi2_staircase(res.staircase, ax=ax,
-                                          synthetic=bool(getattr(dataset, "synthetic", False)))
-        fig.tight_layout()
-        fig.savefig(tmp / "staircase.png", dpi=120)
-        plt.close(fig)
-        if res.diagnoses:
-            fig, ax = plt.subplots(figsize=compare_plots.ranking_figsize(res.diagnoses[0]))
-            compare_plots.plot_effect_ranking(res.diagnoses[0], ax=ax, dataset=dataset)
-            fig.tight_layout()
-            fig.savefig(tmp / "ranking.png", dpi=120)
-            plt.close(fig)
+        write_loop_figures(res.staircase, res.diagnoses[0] if res.diagnoses else None, tmp,
+                           dataset)
         (tmp / "report.md").write_text(_report(res, dataset))
         publish_dir(tmp, out_dir, protected)
     except BaseException:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.calibrate import CALIBRATED
+from analysis.parameter_space import CALIBRATED
 from analysis.config import STUDIES_DIR
 
 #: Table 2 bounds of the contact parameters (declared once: the calibration's priors)

@@ -94,3 +94,18 @@ def test_no_private_name_imported_from_another_module():
             if name and name.startswith("_") and not name.startswith("__") and src != m:
                 bad.append("%s imports %s from %s" % (m, name, src))
     assert bad == []
+
+
+def test_figures_are_drawn_only_in_plotting():
+    """Compute returns results, one output layer draws them: matplotlib is imported by
+    analysis/plotting/ alone."""
+    bad = []
+    for name, path in _modules().items():
+        if name.startswith("analysis.plotting"):
+            continue
+        for n in ast.walk(ast.parse(path.read_text())):
+            mods = ([a.name for a in n.names] if isinstance(n, ast.Import) else
+                    [n.module or ""] if isinstance(n, ast.ImportFrom) else [])
+            if any(m == "matplotlib" or m.startswith("matplotlib.") for m in mods):
+                bad.append(name)
+    assert not bad, "matplotlib imported outside analysis/plotting: %s" % sorted(set(bad))

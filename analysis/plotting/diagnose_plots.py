@@ -40,3 +40,34 @@ def write_diagnosis_figures(diagnosis, folder, staircase=None, *, dataset_name: 
         save_png(fig, folder / "staircase.png", 120)
         names.append("staircase.png")
     return names
+
+
+def write_loop_figures(staircase, first_diagnosis, folder, dataset) -> list:
+    """The loop's figures into ``folder``: staircase.png (every stage's chi2/dof) and, when a
+    diagnosis ran, ranking.png (its first step's ranking).
+
+    Parameters
+    ----------
+    staircase : DataFrame - stage, chi2_dof (``LoopResult.staircase``)
+    first_diagnosis : analysis.diagnose.Diagnosis or None
+    folder : path of an existing folder
+    dataset : analysis.measurements.Dataset - names the ranking, marks a synthetic dataset
+
+    Returns
+    -------
+    list of str - the names of the files written
+    """
+    plt = pyplot()
+    folder = Path(folder)
+    fig, ax = plt.subplots(figsize=(5.5, 3.5))
+    plot_chi2_staircase(staircase, ax=ax, synthetic=bool(getattr(dataset, "synthetic", False)))
+    fig.tight_layout()
+    save_png(fig, folder / "staircase.png", 120)
+    names = ["staircase.png"]
+    if first_diagnosis is not None:
+        fig, ax = plt.subplots(figsize=ranking_figsize(first_diagnosis))
+        plot_effect_ranking(first_diagnosis, ax=ax, dataset=dataset)
+        fig.tight_layout()
+        save_png(fig, folder / "ranking.png", 120)
+        names.append("ranking.png")
+    return names

@@ -54,7 +54,7 @@ import numpy as np
 import pandas as pd
 
 #: calibration prior bounds of the DEM base parameters (declared in analysis.calibrate)
-from analysis.calibrate import CALIBRATED as BASE_BOUNDS
+from analysis.parameter_space import CALIBRATED as BASE_BOUNDS
 from analysis.twin_model.catalog import CANDIDATES, candidates
 from analysis.twin_model.library import (CALIBRATION_DIR, DESIGN_FLIGHTS_FILE, SIGNATURE_DIR,
                                          in_late_pattern, library_at, load_library)
