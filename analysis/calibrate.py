@@ -55,6 +55,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import qmc
 
+from analysis import run_configs
 from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
 from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR
 from analysis.emulator import GPEmulator
@@ -167,8 +168,18 @@ def parse_free(specs):
     return out
 
 
+def condition_runs(params, conditions, seed=0, base=None):
+    """(condition_id, seed, config) of one parameter set at every condition
+    (:func:`analysis.run_configs.condition_runs`): the ball diameter is taken from the table's
+    ``ball_diameter_m`` as it stands (:func:`load_measurements` holds ``ball_diameter_mm /
+    1000.0``), and a stated stroke is not applied (``amplitude_m`` is a calibrated parameter
+    here, from ``params`` or ``base``)."""
+    return run_configs.condition_runs(conditions, (seed,), params, base, stated_stroke=False,
+                                      diameter_column="ball_diameter_m")
+
+
 def condition_configs(params, conditions, seed=0, base=None):
-    """Run configs of one parameter set at every condition.
+    """Run configs of one parameter set at every condition (:func:`condition_runs`).
 
     Parameters
     ----------
@@ -177,14 +188,7 @@ def condition_configs(params, conditions, seed=0, base=None):
     seed : int - start-position seed (common to all conditions: common random numbers)
     base : dict, optional - further config keys (record_s, dt_s, ...)
     """
-    out = []
-    for _, c in conditions.iterrows():
-        cfg = dict(base or {})
-        cfg.update({k: float(v) for k, v in params.items()})
-        cfg.update(frequency_hz=float(c["frequency_hz"]),
-                   ball_diameter_m=float(c["ball_diameter_m"]), seed=int(seed))
-        out.append(cfg)
-    return out
+    return [r.config for r in condition_runs(params, conditions, seed, base)]
 
 
 # ----------------------------------------------------------------------------------- results
@@ -379,13 +383,12 @@ def calibrate(simulate, measurements, bounds=None, n_initial=30, n_refine=10, n_
         for i, th in enumerate(thetas):
             sid = first_id + i
             p = dict(zip(names, th))
-            for cfg, (_, c) in zip(condition_configs(p, meas, seed=sid, base=base_config),
-                                   meas.iterrows()):
-                cfgs.append(cfg)
+            for run in condition_runs(p, meas, seed=sid, base=base_config):
+                cfgs.append(run.config)
                 keys.append({"set_id": sid, "round": round_no,
-                             "condition_id": c["condition_id"], **p,
-                             "frequency_hz": c["frequency_hz"],
-                             "ball_diameter_m": c["ball_diameter_m"], "seed": sid})
+                             "condition_id": run.condition_id, **p,
+                             "frequency_hz": run.config["frequency_hz"],
+                             "ball_diameter_m": run.config["ball_diameter_m"], "seed": run.seed})
         tab = simulate(cfgs).reset_index(drop=True)
         obs = observe(tab, frame, operator)
         rows = pd.DataFrame(keys)

@@ -33,6 +33,7 @@ import pandas as pd
 
 from analysis.config import (DEMO_DIR, MEASURED_APPARATUS_PROFILE, PAPER_APPARATUS_PROFILE,
                              PAPER_TABLE3_DIR, twin_config)
+from analysis.run_configs import condition_configs
 
 
 def measured_table(dataset_dir=PAPER_TABLE3_DIR):
@@ -42,17 +43,13 @@ def measured_table(dataset_dir=PAPER_TABLE3_DIR):
 
 
 def demo_configs(conditions, replicates, record_s, base=None):
-    """Run configs at every condition x seed; ``base`` (a profile's run-config fragment: the
-    apparatus, contact law, contact parameters) under the condition keys."""
-    configs = []
-    for c in conditions.itertuples():
-        for seed in range(replicates):
-            cfg = dict(base or {})
-            cfg.update({"frequency_hz": float(c.frequency_hz),
-                        "ball_diameter_m": float(c.ball_diameter_mm) * 1e-3,
-                        "record_s": record_s, "seed": seed})
-            configs.append(cfg)
-    return configs
+    """Run configs at every condition x seed (:func:`analysis.run_configs.condition_configs`,
+    ball in mm, seeds 0 .. replicates - 1); ``base`` (a profile's run-config fragment: the
+    apparatus, contact law, contact parameters) and ``record_s`` under the condition keys. The
+    stroke is the profile's (or the default): a stated ``amplitude_mm`` is not applied."""
+    return condition_configs(conditions, range(replicates),
+                             base_config=dict(base or {}, record_s=record_s),
+                             stated_stroke=False)
 
 
 #: the paper's contact parameters (its Table 2)

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import MEASUREMENTS_DIR, PAPER_TABLE3_DIR, RESULTS_DIR, twin_config
+from analysis.run_configs import condition_runs
 
 HIDDEN_TRUTH_DIR = RESULTS_DIR / "hidden"
 
@@ -111,16 +112,11 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     if conditions is None:
         conditions = load_dataset(PAPER_TABLE3_DIR).conditions
     base = dict(base_config or {})
-    configs, owners = [], []
-    for c in conditions.itertuples():
-        for k in range(replicates):
-            cfg = dict(base, frequency_hz=float(c.frequency_hz),
-                       ball_diameter_m=float(c.ball_diameter_mm) * 1e-3,
-                       seed=1000 * (seed if twin_seed is None else twin_seed) + k)
-            if dem_effects:
-                cfg["effects"] = dem_effects
-            configs.append(cfg)
-            owners.append(c.condition_id)
+    seed_first = 1000 * (seed if twin_seed is None else twin_seed)
+    # a condition that states its stroke (amplitude_mm) is run at it, as the loop's model runs it
+    runs = condition_runs(conditions, [seed_first + k for k in range(replicates)],
+                          base_config=base, effects=dem_effects, stated_stroke=True)
+    configs, owners = [r.config for r in runs], [r.condition_id for r in runs]
     res = run_sweep(configs, runner=runner, workers=workers, runs_dir=runs_dir,
                     progress=progress)
     if not res.ok:

@@ -30,6 +30,7 @@ import pandas as pd
 
 from analysis.config import HIDDEN_DEMO_DIR
 from analysis import twin_model
+from analysis.run_configs import condition_runs
 
 
 
@@ -89,15 +90,9 @@ def twin_predictions(conditions, theta, dem_effects, kin_spec, slope, intercept,
     from effects import load_effects
     from analysis import kinetics
     from analysis.sweep import run_sweep
-    cfgs, owner = [], []
-    for c in conditions.itertuples():
-        for k in range(replicates):
-            cfg = dict(theta, frequency_hz=float(c.frequency_hz),
-                       ball_diameter_m=float(c.ball_diameter_mm) * 1e-3, seed=seed0 + k)
-            if dem_effects:
-                cfg["effects"] = dem_effects
-            cfgs.append(cfg)
-            owner.append(c.condition_id)
+    runs = condition_runs(conditions, [seed0 + k for k in range(replicates)], theta,
+                          effects=dem_effects, stated_stroke=False)
+    cfgs, owner = [r.config for r in runs], [r.condition_id for r in runs]
     res = run_sweep(cfgs, runner=runner, workers=workers, runs_dir=runs_dir)
     if not res.ok:
         raise RuntimeError("verification runs failed:\n%s" % res.failed()[["run_id", "error"]])

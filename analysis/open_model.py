@@ -48,6 +48,7 @@ import pandas as pd
 
 from analysis.conditions import physics_table
 from analysis.parameter_space import BASE_STEPS as PARAMETER_STEPS
+from analysis.run_configs import condition_config, stated_amplitude_m
 from analysis.twin_model import (CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS,
                                  OPTIONAL_CANDIDATES,
                                  V_REL_SD_FLOOR, TwinModel, candidates, curvatures, interp_levels,
@@ -135,17 +136,9 @@ def known_run_table(results_dir=None) -> pd.DataFrame:
 
 def condition_configs(phys, theta, seed, base_config=None, effects=None):
     """Run config of one condition: ``base_config``, the base parameters ``theta``, the
-    condition's frequency, ball and (when stated) stroke, the seed and the effects."""
-    cfg = dict(base_config or {})
-    cfg.update({k: float(v) for k, v in theta.items()})
-    cfg.update(frequency_hz=float(phys["frequency_hz"]),
-               ball_diameter_m=float(phys["ball_diameter_mm"]) * 1e-3, seed=int(seed))
-    a = phys.get("amplitude_mm", np.nan)
-    if a is not None and np.isfinite(a):
-        cfg["amplitude_m"] = float(a) * 1e-3
-    if effects:
-        cfg["effects"] = effects
-    return cfg
+    condition's frequency, ball and (when stated) stroke, the seed and the effects
+    (:func:`analysis.run_configs.condition_config`, ball in mm, the stated stroke honoured)."""
+    return condition_config(phys, theta, seed, base_config, effects, stated_stroke=True)
 
 
 class OpenTwinModel(TwinModel):
@@ -233,8 +226,7 @@ class OpenTwinModel(TwinModel):
 
     # ------------------------------------------------------------------ the plan
     def _stated_amplitude(self, i):
-        a = self.phys["amplitude_mm"].iloc[i]
-        return bool(np.isfinite(a))
+        return stated_amplitude_m(self.phys.iloc[i]) is not None
 
     def base_seeds(self, p) -> int:
         """Seeds per response level of base parameter ``p`` (:data:`NOISY_BASE`:
@@ -250,8 +242,7 @@ class OpenTwinModel(TwinModel):
             cid = ph["condition_id"]
             for k in range(self.replicates):
                 rows.append(("anchor", "", 0.0, cid, self.seed0 + k,
-                             condition_configs(ph, ref, self.seed0 + k,
-                                                              self.base_config)))
+                             condition_configs(ph, ref, self.seed0 + k, self.base_config)))
             for p in self.base_requested:
                 if p == "amplitude_m" and self._stated_amplitude(i):
                     continue

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
+from analysis.run_configs import condition_runs
 
 OUT = RESULTS_DIR / "apparatus"
 PAPER_CONTACT = {"restitution": 0.11, "static_friction": 0.7, "rolling_friction": 0.5}
@@ -49,16 +50,15 @@ def conditions():
 
 
 def configs(cond, seeds):
+    """(run configs, keys: variant, condition_id, seed) of every variant x condition x seed:
+    the jar frame, the paper's contact parameters, the variant's change over both; the stroke
+    is the variant's (a stated ``amplitude_mm`` is not applied)."""
     out, keys = [], []
     for name, change in VARIANTS.items():
-        for c in cond.itertuples():
-            for s in range(seeds):
-                cfg = {"frequency_hz": float(c.frequency_hz),
-                       "ball_diameter_m": float(c.ball_diameter_mm) * 1e-3,
-                       "seed": s, "frame": "jar", **PAPER_CONTACT}
-                cfg.update(change)
-                out.append(cfg)
-                keys.append({"variant": name, "condition_id": c.condition_id, "seed": s})
+        base = {"frame": "jar", **PAPER_CONTACT, **change}
+        for r in condition_runs(cond, range(seeds), base_config=base, stated_stroke=False):
+            out.append(r.config)
+            keys.append({"variant": name, "condition_id": r.condition_id, "seed": r.seed})
     return out, pd.DataFrame(keys)
 
 

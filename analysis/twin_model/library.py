@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
+from analysis.run_configs import condition_runs
 from analysis.twin_model.catalog import CANDIDATES, Candidate
 
 SIGNATURE_DIR = RESULTS_DIR / "signatures"
@@ -52,15 +53,9 @@ def library_configs(conditions, theta_ref, replicates=2, seed0=0, base=None,
                   max(replicates, c.replicates or 0)) for c in CANDIDATES
                  if c.kind == "dem" for fr in (levels or c.signature_levels)]
     for label, eff, s, spec, n_seeds in variants:
-        for cnd in conditions.itertuples():
-            for k in range(n_seeds):
-                cfg = dict(base or {}, **theta_ref)
-                cfg.update(frequency_hz=float(cnd.frequency_hz),
-                           ball_diameter_m=float(cnd.ball_diameter_mm) * 1e-3,
-                           seed=seed0 + k)
-                if spec:
-                    cfg["effects"] = spec
-                rows.append((label, eff, s, cnd.condition_id, cfg))
+        seeds = [seed0 + k for k in range(n_seeds)]
+        rows += [(label, eff, s, r.condition_id, r.config) for r in
+                 condition_runs(conditions, seeds, theta_ref, base, spec, stated_stroke=False)]
     return rows
 
 
