@@ -50,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.atomic_dir import publish_dir, staging_dir
+from analysis.report import comparison_page
 from scipy import signal, stats
 
 from analysis.flights import FLIGHT_OBSERVABLES, dataset_flights
@@ -475,41 +476,8 @@ def phase_fold_compare(dataset: Dataset, model_tracks: dict, n_bins: int = 24,
 
 # --------------------------------------------------------------------------- report / CLI
 
-def markdown_page(cmp: Comparison, dataset: Dataset, figures=()) -> str:
-    """A Markdown page: headline, plain-words lines, the table, figures."""
-    t = cmp.table
-    synth = getattr(dataset, "synthetic", False)
-    out = ["# Twin vs %s: %s" % ("SYNTHETIC data" if synth else "measurements", dataset.name),
-           ""]
-    if synth:
-        out += ["> **SYNTHETIC DATA**: this dataset says it is synthetic (dataset.json "
-                "`\"synthetic\": true`): its 'measured' values were generated, not measured.", ""]
-    out += ["Source: %s (velocity frame: %s)." % (dataset.source, dataset.velocity_frame), ""]
-    out += [cmp.summary(), ""]
-    if t["measured_sd_default"].any():
-        out.append("Measured sd missing for %d row(s): default uncertainty used (see "
-                   "analysis/measurements.py)." % int(t["measured_sd_default"].sum()))
-    if t["model_sd_default"].any():
-        out.append("Twin replicate sd missing for %d row(s): default used." %
-                   int(t["model_sd_default"].sum()))
-    if t.get("one_realisation", pd.Series(False, index=t.index)).any():
-        out.append("Impact observables (analysis.flights) come from one measured track each: "
-                   "their sigma also holds one twin run's sd; diff % is left out for them.")
-    out += ["", "| condition | observable | %s | model (mean +- se, n) | diff %% | z |"
-            % ("SYNTHETIC 'measured'" if synth else "measured"),
-            "|---|---|---|---|---|---|"]
-    for _, r in t.iterrows():
-        obs = r["observable"] + ("" if not np.isfinite(r["time_min"]) else
-                                 " @ %g min" % r["time_min"])
-        rel = ("%+.1f" % r["rel_residual_pct"] if np.isfinite(r["rel_residual_pct"])
-               else "-")
-        out.append("| %s | %s | %.4g +- %.2g | %.4g +- %.2g (%d) | %s | %+.2f |"
-                   % (r["label"], obs, r["measured"], r["measured_sd"], r["model_mean"],
-                      r["model_se"], r["n_replicates"], rel, r["z"]))
-    out.append("")
-    for f in figures:
-        out += ["![%s](%s)" % (Path(f).stem, Path(f).name), ""]
-    return "\n".join(out)
+#: the comparison.md text (:func:`analysis.report.comparison_page`), under its former name
+markdown_page = comparison_page
 
 
 def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = True) -> Path:
@@ -523,7 +491,7 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
     try:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
         figs = write_compare_figures(cmp, dataset, tmp)
-        (tmp / "comparison.md").write_text(markdown_page(cmp, dataset, figs))
+        (tmp / "comparison.md").write_text(comparison_page(cmp, dataset, figs))
         if out_dir.exists() and not overwrite:
             raise FileExistsError(out_dir)
         publish_dir(tmp, out_dir, protected)

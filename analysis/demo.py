@@ -109,33 +109,9 @@ def summarize_runs(conditions, configs, sweep_table):
 
 
 def write_page(table, out_dir, meta, extra=()):
-    cols = ["condition_id", "v_mean_measured_m_s", "v_mean_twin_observed_m_s",
-            "v_mean_twin_sd_m_s", "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz",
-            "f_col_diff_pct", "motion_modes", "n_replicates"]
-    lines = ["# Demo: the twin at the paper's 8 conditions", "",
-             "Paper contact parameters (C_R = 0.11, SF = 0.7, RF = 0.5) in %s: jar "
-             "amplitude A = %.1f mm, dt = %g s, %d replicate(s) per condition, %.2f s recorded "
-             "after the detected steady state. Speeds and collision frequencies pass through "
-             "the same observation operator as a video (2134 fps, lab frame). Wall time %.0f s."
-             % (meta.get("apparatus", "the default jar and stroke"), meta["amplitude_m"] * 1e3,
-                meta["dt_s"], meta["replicates"], meta["record_s"], meta["wall_s"]), "",
-             table[cols].to_markdown(index=False, floatfmt=".3g")
-             if _has_tabulate() else "```\n" + table[cols].to_string(index=False) + "\n```", "",
-             "mean |v error| = %.2f %%, max = %.2f %%; f_col within one collision of the "
-             "measured value (the count resolution of the record) at %d of %d conditions."
-             % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max(),
-                int((table["f_col_diff_pct"].abs() < 1e-9 + 100 / table["f_col_measured_hz"]
-                     / meta["record_s"]).sum()), len(table)),
-             ""] + ["- " + x for x in extra] + ["", "![v_mean over frequency](demo.png)", ""]
-    (out_dir / "README.md").write_text("\n".join(lines))
-
-
-def _has_tabulate():
-    try:
-        import tabulate  # noqa: F401
-        return True
-    except ImportError:
-        return False
+    """README.md of the demo into ``out_dir`` (text: :func:`analysis.report.demo_page`)."""
+    from analysis.report import demo_page
+    (out_dir / "README.md").write_text(demo_page(table, meta, extra))
 
 
 def calibrated_lines(cond, lib_dir=None):

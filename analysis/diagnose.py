@@ -1033,6 +1033,7 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
     from pathlib import Path
 
     from analysis.plotting.diagnose_plots import write_diagnosis_figures
+    from analysis.report import diagnosis_page
 
     out_dir = Path(out_dir)
     tmp = staging_dir(out_dir, protected)  # makes the parent folder too
@@ -1041,25 +1042,10 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
         diag.structure.to_csv(tmp / "structure.csv", index=False)
         write_diagnosis_figures(diag, tmp, added.staircase if added is not None else None,
                                 dataset_name=dataset_name, synthetic=synthetic)
-        cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength",
-                "strength_se", "footprint", "absorbed_frac", "identifiable", "significant"]
-        md = ["# Which effect is missing? %s%s" % (dataset_name,
-                                                   " (SYNTHETIC data)" if synthetic else ""), ""]
-        if synthetic:
-            md += ["> **SYNTHETIC DATA**: the dataset says it is synthetic (dataset.json "
-                   "`\"synthetic\": true`), not measured.", ""]
-        md += ["**Verdict:** %s" % diag.verdict,
-               "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for _, r in diag.table.iterrows():
-            md.append("| " + " | ".join(("%.3g" % r[c]) if isinstance(r[c], float) else str(r[c])
-                                        for c in cols) + " |")
-        md += ["", "![ranking](ranking.png)", ""]
         if added is not None:
             added.staircase.to_csv(tmp / "staircase.csv", index=False)
             added.to_frame().reset_index().to_csv(tmp / "before_after.csv", index=False)
-            md += ["## Adding %s" % added.effect, "", added.summary(), "",
-                   "![staircase](staircase.png)", ""]
-        (tmp / "diagnosis.md").write_text("\n".join(md))
+        (tmp / "diagnosis.md").write_text(diagnosis_page(diag, added, dataset_name, synthetic))
         publish_dir(tmp, out_dir, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -30,6 +30,7 @@ import pandas as pd
 
 from analysis.config import HIDDEN_DEMO_DIR
 from analysis import twin_model
+from analysis.report import hidden_demo_page
 from analysis.run_configs import condition_runs
 
 
@@ -288,42 +289,9 @@ def _run_demo(out_dir, secret_seed=2026, effect_spec=None, workers=2, replicates
 
 
 def _write_page(out_dir, ds, cmp0, diag, added, stair, reveal, times, truth):
-    cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength", "strength_se",
-            "absorbed_frac", "identifiable", "significant"]
-    lines = ["# Hidden-effect demo (SYNTHETIC data from the twin)", "",
-             "A secret effect was switched on in the twin; the dataset (v_mean, f_col, yields at "
-             "8 conditions, with noise; a track of the ball and the jar per condition, read by "
-             "analysis.flights into impact observables) was then compared, diagnosed and "
-             "corrected blind. Compare, diagnose and the chi2/dof staircase all read the "
-             "impact observables beside v_mean, f_col and the yields.", "",
-             "## 1. Compare: the calibrated twin without effects", "",
-             "chi2/dof = %.2f (dof %d). Where it fails:" % (cmp0.chi2 / max(cmp0.dof, 1),
-                                                           cmp0.dof), "", "```",
-             cmp0.summary(2.0), "```", "", "![overview](overview.png)", "",
-             "## 2. Diagnose", "", "**Verdict:** " + diag.verdict, "",
-             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, r in diag.table.iterrows():
-        lines.append("| " + " | ".join(("%.3g" % r[c]) if isinstance(r[c], float) else str(r[c])
-                                      for c in cols) + " |")
-    lines += ["", "![ranking](diagnose/ranking.png)", "", "## 3. Add and verify", ""]
-    if added is not None:
-        lines += [added.summary(), ""]
-    lines += ["| stage | chi2 | dof | chi2/dof |", "|---|---|---|---|"]
-    for r in stair.itertuples():
-        lines.append("| %s | %.1f | %d | %.2f |" % (r.stage, r.chi2, r.dof, r.chi2_dof))
-    lines += ["", "The last row reruns the real twin at the refitted parameters with the added "
-              "effect (not the emulator).", "", "## 4. Reveal", "",
-              "| | |", "|---|---|",
-              "| hidden effect | %s %s |" % (reveal["hidden_effect"], reveal["hidden_params"]),
-              "| hidden strength (diagnose coordinate) | %.3g |" % reveal["hidden_strength"],
-              "| reported | %s (%s) |" % (reveal["reported"], reveal["status"]),
-              "| rank of the hidden effect | %s |" % reveal["true_rank"],
-              "| its fitted strength | %s |" % (
-                  "%.3g +- %.2g" % (reveal["fitted_strength"], reveal["fitted_strength_se"])
-                  if reveal["fitted_strength"] is not None else "-"),
-              "| found | %s |" % ("yes" if reveal["found"] else "NO"), "",
-              "Times: " + ", ".join("%s %.0f s" % (k, v) for k, v in times.items()), ""]
-    (Path(out_dir) / "report.md").write_text("\n".join(lines))
+    """report.md of the demo (text: :func:`analysis.report.hidden_demo_page`)."""
+    (Path(out_dir) / "report.md").write_text(hidden_demo_page(cmp0, diag, added, stair, reveal,
+                                                              times))
 
 
 def main(argv=None):

@@ -35,6 +35,7 @@ import pandas as pd
 
 from analysis.config import RESULTS_DIR
 from analysis import twin_model
+from analysis.report import hidden_suite_comparison_section, hidden_suite_page
 
 SUITE_DIR = RESULTS_DIR / "hidden_suite"
 
@@ -281,76 +282,15 @@ def write_report(rows, out_dir=SUITE_DIR, synthetic: bool | None = None):
                      if "synthetic" in rows else True)
     write_confusion_figure(confusion_matrix(rows), out_dir / "confusion.png",
                            synthetic=synthetic)
-    lines = ["# Hidden-effect suite", "",
-             "Datasets made by the real twin at the calibrated parameters with one catalog effect "
-             "hidden (or none), diagnosed blind with `analysis.twin_model` (see "
-             "`analysis/hidden_suite.py`). SYNTHETIC data throughout. Each dataset holds "
-             "v_mean and f_col (noise 1.5 % and 1 /s plus the twin's scatter), yields at "
-             "2.5-10 min (1 point) and a track of the ball and the jar per condition (2134 "
-             "frames/s, 5 um tracking noise), which the diagnosis reads into impact "
-             "observables (`analysis.flights`).", "",
-             "| figure | value | goal |", "|---|---|---|",
-             "| datasets (effect / none) | %d / %d | |" % (summ["n_effect_datasets"],
-                                                       summ["n_null_datasets"]),
-             "| effect datasets moving an observable >= 3 sigma (raw, before recalibration) "
-             "| %d | |" % summ["n_effect_datasets_ge_3sigma_raw"],
-             "| ... of those, true effect ranked first | %s | |" % _pct(summ["rank1_rate_raw"]),
-             "| effect datasets moving an observable >= 3 sigma after the best recalibration "
-             "without the effect (the identifiable part) | %d | |"
-             % summ["n_effect_datasets_ge_3sigma"],
-             "| ... of those, true effect ranked first | %s | >= 90 %% |" % _pct(summ["rank1_rate"]),
-             "| true effect reported (significant) | %s | |" % _pct(summ["true_reported_rate"]),
-             "| decoy (air drag) significant | %d | 0 |" % summ["decoy_significant"],
-             "| no-effect datasets: nothing missing | %d / %d | all |"
-             % (summ["null_nothing_missing"], summ["n_null_datasets"]),
-             "| added effects starting from chi2/dof >= 4.5 that end <= 1.5 | %d / %d | all |"
-             % (summ["added_reaching_1.5"], summ["n_added_from_ge_4.5"]),
-             "| median time per diagnosis + add | %.1f s | |"
-             % summ["median_seconds_per_diagnosis"], "",
-             "## Per case", "", pe.to_markdown(index=False, floatfmt=".3g")
-             if hasattr(pe, "to_markdown") and _has_tabulate()
-             else "```\n" + pe.to_string(index=False, float_format=lambda x: "%.3g" % x)
-             + "\n```",
-             "", "![confusion](confusion.png)", ""]
-    (out_dir / "README.md").write_text("\n".join(lines))
+    (out_dir / "README.md").write_text(hidden_suite_page(summ, pe))
     return summ
 
 
 def _append_comparison(page, summ, summ0, pe, pe0):
-    """Add the same datasets' figures without the jar tracks to the suite page."""
-    keys = [("rank1_rate", "true effect ranked first (datasets >= 3 sigma after "
-             "recalibration)", _pct), ("n_effect_datasets_ge_3sigma", "... how many", str),
-            ("rank1_rate_raw", "true effect ranked first (datasets >= 3 sigma raw)", _pct),
-            ("decoy_significant", "decoy significant", str),
-            ("null_nothing_missing", "no-effect datasets: nothing missing", str),
-            ("added_reaching_1.5", "added from chi2/dof >= 4.5 ending <= 1.5", str),
-            ("n_added_from_ge_4.5", "... how many start >= 4.5", str)]
-    lines = ["", "## With and without the jar tracks", "",
-             "The same datasets diagnosed on v_mean, f_col and the yields alone "
-             "(`without_tracks/`), against the default that also reads the impact observables "
-             "of the jar tracks (`analysis.flights`):", "",
-             "| figure | with jar tracks | without |", "|---|---|---|"]
-    for k, label, f in keys:
-        lines.append("| %s | %s | %s |" % (label, f(summ[k]), f(summ0[k])))
-    m = pe[["case", "rank1_rate"]].merge(pe0[["case", "rank1_rate"]], on="case",
-                                         suffixes=("_with", "_without"))
-    lines += ["", "Rank-1 rate per case (all 5 noise seeds): " + "; ".join(
-        "%s %.0f %% / %.0f %%" % (r.case, 100 * r.rank1_rate_with, 100 * r.rank1_rate_without)
-        for r in m.itertuples()) + ".", ""]
+    """Add the same datasets' figures without the jar tracks to the suite page (text:
+    :func:`analysis.report.hidden_suite_comparison_section`)."""
     with open(page, "a") as fh:
-        fh.write("\n".join(lines))
-
-
-def _has_tabulate():
-    try:
-        import tabulate  # noqa: F401
-        return True
-    except ImportError:
-        return False
-
-
-def _pct(x):
-    return "n/a" if x is None else "%.0f %%" % (100 * x)
+        fh.write(hidden_suite_comparison_section(summ, summ0, pe, pe0))
 
 
 def main(argv=None):

@@ -942,6 +942,7 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
 def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
     """Write the loop's folder atomically (see the module docstring for the files)."""
     from analysis.plotting.diagnose_plots import write_loop_figures
+    from analysis.report import loop_page
 
     out_dir = Path(out_dir)
     tmp = staging_dir(out_dir, protected)
@@ -964,7 +965,7 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
         (tmp / "loop.json").write_text(json.dumps(info, indent=1, default=_json))
         write_loop_figures(res.staircase, res.diagnoses[0] if res.diagnoses else None, tmp,
                            dataset)
-        (tmp / "report.md").write_text(_report(res, dataset))
+        (tmp / "report.md").write_text(loop_page(res, dataset))
         publish_dir(tmp, out_dir, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -978,49 +979,6 @@ def _json(o):
     if isinstance(o, np.bool_):
         return bool(o)
     return str(o)
-
-
-def _md_table(df, cols, fmt="%.4g"):
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, r in df.iterrows():
-        lines.append("| " + " | ".join((fmt % r[c]) if isinstance(r[c], (float, np.floating))
-                                        else str(r[c]) for c in cols) + " |")
-    return lines
-
-
-def _report(res, dataset):
-    i = res.info
-    synth = " (SYNTHETIC)" if dataset.meta.get("synthetic") else ""
-    md = ["# The loop on %s%s" % (dataset.name, synth), "",
-          "**Verdict:** %s" % res.verdict, "",
-          "Velocity frame: %s. Conditions (matched by physics):" % i["velocity_frame"], ""]
-    md += ["- %s: %s" % (c["condition_id"], c["label"]) for c in i["conditions"]]
-    if i.get("tracking"):
-        md += ["", "## Films tracked (ball and jar; tracks in tracks/)", ""]
-        md += _md_table(pd.DataFrame(i["tracking"]), ["condition_id", "video", "n_frames",
-                                                      "n_lost", "n_reacquired", "m_per_px",
-                                                      "scale_source", "jar_n_lost"])
-    md += ["", "## Staircase (chi2/dof)", ""]
-    md += _md_table(res.staircase, ["stage", "chi2", "dof", "chi2_dof", "p_value"])
-    md += ["", "![staircase](staircase.png)", "", "## Parameters", ""]
-    p = res.parameters.copy()
-    if "note" not in p.columns:
-        p["note"] = ""
-    p["note"] = p["note"].fillna("")
-    md += _md_table(p, ["name", "role", "value", "se", "note"])
-    md += ["", "## Candidates", ""]
-    md += _md_table(res.diagnosis, ["rank", "effect", "kind", "significant", "strength",
-                                    "strength_se", "delta_chi2", "p_bonferroni", "step"])
-    for b in i.get("bootstrap") or []:
-        md += ["", "Significance calibrated at step %d on %d datasets drawn from the fitted "
-               "model: threshold x %.2f; %d of them named an effect at the nominal level."
-               % (b["step"], b["n_draws"], b["scale"], b["n_false"])]
-    md += ["", "![ranking](ranking.png)", "",
-           "Model: %d twin runs at the dataset's conditions (%d new this time), anchor %s%s; "
-           "wall time %.0f s." % (len(res.model_runs), i["new_runs"], _fmt_theta(i["anchor"]),
-                                  ("; re-anchored %d time(s)" % len(i["reanchors"]))
-                                  if i["reanchors"] else "", i["wall_s"]), ""]
-    return "\n".join(md)
 
 
 # --------------------------------------------------------------------------- CLI

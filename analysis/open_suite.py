@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.report import open_suite_page
 
 OUT_DIR = RESULTS_DIR / "open_world" / "loop"
 DATASETS_DIR = RESULTS_DIR / "open_world" / "datasets"
@@ -247,18 +248,7 @@ def main(argv=None):
     import os
     from analysis.config import REPO_ROOT
     rel = os.path.relpath(Path(a.datasets).resolve(), REPO_ROOT)
-    md = ["# The loop on blind open-world datasets (SYNTHETIC)", "",
-          "Datasets: `%s` (the twin once per condition at conditions the paper never ran, "
-          "off-anchor base parameters, measurement noise, jar tracks, yields; `*_film`: the "
-          "same delivered as films)." % rel, ""]
-    md += ["- " + x for x in lines]
-    md += ["", "| dataset | hidden | found | chi2/dof calibrated | last | twin rerun |",
-           "|---|---|---|---|---|---|"]
-    for r in summ.itertuples():
-        md.append("| %s | %s | %s | %.2f | %.2f | %.2f |" % (
-            r.dataset, r.hidden, r.found, r.chi2_dof_calibrated, r.chi2_dof_last,
-            r.chi2_dof_twin_rerun))
-    (out / "README.md").write_text("\n".join(md) + "\n")
+    (out / "README.md").write_text(open_suite_page(summ, lines, rel))
     print("\n".join(lines))
     return 0
 

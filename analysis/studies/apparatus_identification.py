@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.report import apparatus_identification_page
 
 CAL = RESULTS_DIR / "apparatus" / "identify_paper_dem"
 #: goals (issue "a twin of the real mill"): twin vs the target column - the paper's DEM column
@@ -64,49 +65,10 @@ def write(cal_dir, params, comp, samples, summary, base, profile=None):
     ok = t["diff_pct"].notna()
     mean_abs, max_abs = t.loc[ok, "diff_pct"].abs().mean(), t.loc[ok, "diff_pct"].abs().max()
     tw, tg = shape(t[ok], "v_mean_twin_m_s"), shape(t[ok], "v_mean_measured_m_s")
-    lines = ["# The apparatus identified: %s" % summary.get("dataset", ""), "",
-             "Calibration folder `%s` (`python -m analysis.calibrate --free ...`), fixed in "
-             "every run: %s. %d parameter sets, %d twin runs (%d failed); the posterior of a "
-             "GP emulator of the twin sampled with emcee; then the real twin at the posterior "
-             "mean. Regenerate this page: `python -m analysis.studies.apparatus_identification "
-             "--cal %s`." % (cal_dir.name, ", ".join("%s %s" % kv for kv in base.items()) or
-                             "-", summary["n_parameter_sets"], summary["n_runs"],
-                             summary["n_failed_runs"], cal_dir), "",
-             "## Posterior", "",
-             "| parameter | mean | sd | 95 % interval | prior range | interval / prior width |",
-             "|---|---|---|---|---|---|"]
-    for k, r in params.iterrows():
-        width = (r["q97.5"] - r["q2.5"]) / (r["prior_upper"] - r["prior_lower"])
-        lines.append("| %s | %.4g | %.2g | [%.4g, %.4g] | %.4g - %.4g | %.2f |"
-                     % (k, r["mean"], r["sd"], r["q2.5"], r["q97.5"], r["prior_lower"],
-                        r["prior_upper"], width))
-    strong = [(a, b, corr.loc[a, b]) for i, a in enumerate(names) for b in names[i + 1:]
-              if abs(corr.loc[a, b]) >= 0.5]
-    lines += ["", "How unique: an interval / prior width near 1 means the speeds do not pin "
-              "that parameter. Posterior correlations |r| >= 0.5 (trade-offs: moving one along "
-              "the other keeps the speeds): %s." % ("; ".join("%s-%s %+.2f" % s for s in strong)
-                                                    or "none"), "",
-              "## Residual per condition (twin at the posterior mean)", "",
-              "| condition | target v [m/s] | twin v [m/s] | twin sd | diff [%] |",
-              "|---|---|---|---|---|"]
-    for r in t.itertuples():
-        lines.append("| %s | %.3f | %.3f | %.3f | %+.2f |"
-                     % (r.condition_id, r.v_mean_measured_m_s, r.v_mean_twin_m_s,
-                        r.v_mean_twin_sd_m_s, r.diff_pct))
     g_mean, g_max = ((GOAL_MEAN_PCT, GOAL_MAX_PCT) if "dem" in str(summary.get("dataset", ""))
                      else (GOAL_MEASURED_MEAN_PCT, GOAL_MEASURED_MAX_PCT))
-    lines += ["", "mean |diff| %.2f %%, max %.2f %% (goal <= %.1f %% and <= %.1f %%)."
-              % (mean_abs, max_abs, g_mean, g_max), "",
-              "Shape: v/f [mm] 17.5 mm ball %.1f (target %.1f), 20.6 mm ball %.1f (%.1f); "
-              "split %+.1f %% (%+.1f %%); 22.5 -> 30 Hz change of v/f %+.1f %% (%+.1f %%) and "
-              "%+.1f %% (%+.1f %%)."
-              % (tw["vf_17_5_mm"], tg["vf_17_5_mm"], tw["vf_20_6_mm"], tg["vf_20_6_mm"],
-                 tw["split_pct"], tg["split_pct"], tw["trend_17_5_pct"], tg["trend_17_5_pct"],
-                 tw["trend_20_6_pct"], tg["trend_20_6_pct"]), ""]
-    for f in ("posterior_pairs.png", "parity.png"):
-        if (cal_dir / f).exists():
-            lines.append("![%s](%s)" % (f, f))
-    (cal_dir / "README.md").write_text("\n".join(lines) + "\n")
+    (cal_dir / "README.md").write_text(apparatus_identification_page(
+        cal_dir, summary, base, params, corr, t, mean_abs, max_abs, tw, tg, g_mean, g_max))
     if profile:
         fitted = {k: float("%.3g" % params.loc[k, "mean"]) for k in names}
         prof = {"source": str(cal_dir), "dataset": summary.get("dataset", ""),

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
+from analysis.report import apparatus_screen_page
 from analysis.run_configs import condition_runs
 
 OUT = RESULTS_DIR / "apparatus"
@@ -100,33 +101,7 @@ def summarize(keys: pd.DataFrame, runs: pd.DataFrame, cond: pd.DataFrame) -> pd.
 def write(summary: pd.DataFrame, seeds: int, out=OUT):
     out.mkdir(parents=True, exist_ok=True)
     summary.to_csv(out / "screen.csv", index=False, float_format="%.4g")
-    lines = ["# The apparatus: screen at the paper's contact parameters", "",
-             "C_R 0.11, SF 0.7, RF 0.5; the 8 conditions of Table 3, %d start positions each; "
-             "one change from the default twin per row. v/f in mm (mean over the conditions "
-             "of each ball); split = 17.5 mm ball over 20.6 mm ball; trend = v/f at 30 Hz "
-             "over v/f at 22.5 Hz; runs not in end-to-end flight are left out of the figures "
-             "and counted. `python -m analysis.studies.apparatus_screen`." % seeds, "",
-             "| variant | v/f 17.5 mm | v/f 20.6 mm | split % | trend 17.5 % | trend 20.6 % "
-             "| mean abs diff to EDEM % | runs (not end-to-end) |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in summary.itertuples():
-        lines.append("| %s | %.1f | %.1f | %+.1f | %+.1f | %+.1f | %.1f | %s |"
-                     % (r.variant, r.vf_17_5_mm, r.vf_20_6_mm, r.split_pct, r.trend_17_5_pct,
-                        r.trend_20_6_pct, r.mean_abs_diff_dem_pct,
-                        "-" if np.isnan(r.runs) else "%d (%d)" % (r.runs, r.not_end_to_end)))
-    lines += ["", "Next steps of `make apparatus` (docs/apparatus.md): the apparatus identified "
-              "from the paper's DEM column at its contact parameters, then contact and "
-              "apparatus calibrated on the measurements."]
-    for sub, what in (("identify_paper_dem", "identified from the paper's DEM column"),
-                      ("calibrate_measured", "calibrated on Table 3's measurements")):
-        if (out / sub / "README.md").exists():
-            lines.append("- [%s](%s/README.md): %s" % (sub, sub, what))
-    for sd in ("0.5", "1", "1.5", "2"):
-        sub = "loop_table3_end_fillet_sd%s" % sd
-        if (out / sub / "report.md").exists():
-            lines.append("- [%s](%s/report.md): the loop on Table 3 with the end fillet in its "
-                         "catalog, v sd %s %% assumed" % (sub, sub, sd))
-    (out / "README.md").write_text("\n".join(lines) + "\n")
+    (out / "README.md").write_text(apparatus_screen_page(summary, seeds, out))
 
 
 def main(argv=None):

@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.report import effect_transfer_page
 
 OUT = RESULTS_DIR / "studies" / "effect_transfer"
 #: observables whose change is taken relative to the anchor mean (the others absolute)
@@ -165,25 +166,15 @@ def main(argv=None) -> int:
     try:
         groups.to_csv(tmp / "groups.csv", index=False)
         tab.to_csv(tmp / "transfer.csv", index=False)
-        md = ["# Effect responses across conditions (leave-one-out)", "",
-              "Runs: every committed `model_runs.csv` beside a `loop.json` (%d runs, %d "
-              "anchors)." % (len(runs), runs["anchor_key"].nunique()), "",
-              "Ratio = leave-one-out rms error / rms standard error of the measured changes "
-              "(medians over the levels and anchors); near 1: predicting the change from the "
-              "other conditions is as good as measuring it.", "",
-              "| effect | observable | conditions | ratio, constant | ratio, plane in (f, d) |",
-              "|---|---|---|---|---|"]
-        for r in summ.itertuples():
-            md.append("| %s | %s | %d | %.2f | %.2f |" % (r.effect, r.observable,
-                                                         r.n_conditions, r.ratio_constant,
-                                                         r.ratio_plane))
-        (tmp / "README.md").write_text("\n".join(md) + "\n")
+        text = effect_transfer_page(len(runs), runs["anchor_key"].nunique(), summ)
+        (tmp / "README.md").write_text(text)
     except BaseException:
         import shutil
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     publish_dir(tmp, out)
-    print("\n".join(md[-len(summ) - 2:]) if len(summ) else "no group with enough conditions")
+    print("\n".join(text.split("\n")[:-1][-len(summ) - 2:]) if len(summ)
+          else "no group with enough conditions")
     print("wrote %s" % out)
     return 0
 

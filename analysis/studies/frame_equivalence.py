@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR, RUNS_DIR
+from analysis.report import frame_equivalence_page
 
 LAB_RUNS = RESULTS_DIR / "loop" / "paper_table3"
 OUT = RESULTS_DIR / "studies" / "frame_equivalence"
@@ -138,28 +139,10 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     tab.to_csv(out.with_suffix(".csv"), index=False)
     wl, wj = wall_times(lab["run_id"]), wall_times(jar["run_id"])
-    zs = np.concatenate([tab[c + "_z"].dropna().to_numpy() for c in COMPARED])
     n_seeds = int(lab.groupby("condition_id").size().min())
-    lines = ["# Jar frame against lab frame, 8 paper conditions x %d seeds" % n_seeds, "",
-             "Per condition and observable: z = (jar mean - lab mean) / se (%d seeds each; the "
-             "run sd pooled over the 8 conditions and both frames). "
-             "|z| > 2: %d of %d; mean z^2 %.2f (1 if the frames agree within the chaos)."
-             % (n_seeds, int(np.sum(np.abs(zs) > 2)), zs.size, float(np.mean(zs ** 2))),
-             "Motion modes equal at %d of %d conditions." % (
-                 int((tab["modes_lab"] == tab["modes_jar"]).sum()), len(tab)),
-             "Wall time per run on this machine: lab %s, jar %s." % (
-                 "%.1f s (n %d)" % (np.mean(wl), len(wl)) if wl else "(lab runs not cached "
-                 "here)", "%.1f s (n %d)" % (np.mean(wj), len(wj)) if wj else "-"), "",
-             "| condition | v lab | v jar | z | f_col lab | f_col jar | z | v_in z | e_app z "
-             "| phase z | modes lab / jar |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in tab.itertuples():
-        lines.append("| %s | %.3f | %.3f | %+.1f | %.1f | %.1f | %+.1f | %+.1f | %+.1f | %+.1f "
-                     "| %s / %s |" % (r.condition_id, r.v_mean_m_s_lab, r.v_mean_m_s_jar,
-                                      r.v_mean_m_s_z, r.f_col_hz_lab, r.f_col_hz_jar,
-                                      r.f_col_hz_z, r.v_in_m_s_z, r.e_app_z,
-                                      r.impact_phase_rad_z, r.modes_lab, r.modes_jar))
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines[:5]))
+    text = frame_equivalence_page(tab, wl, wj, n_seeds, COMPARED)
+    out.with_suffix(".md").write_text(text)
+    print("\n".join(text.split("\n")[:5]))
     return 0
 
 

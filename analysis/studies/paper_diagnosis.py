@@ -22,6 +22,7 @@ from pathlib import Path
 import pandas as pd
 
 from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR, RESULTS_DIR
+from analysis.report import paper_diagnosis_page
 
 OUT_DIR = RESULTS_DIR / "paper_diagnosis"
 
@@ -105,28 +106,7 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
                 max_abs_v_err_with_effect_pct=float(table["v_err_with_effect_pct"].abs().max()),
                 theta=table.attrs["theta"], effect=table.attrs["effect"])
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
-        lines = ["# Which effect is missing on the paper's Table 3?", "",
-                 "The issue-6 loop on the real measurements (v_mean sd 1.5 %, f_col sd 1 /s "
-                 "assumed; Table 3 gives none). Model: `analysis.twin_model` (anchor at the "
-                 "calibrated parameters, restitution and amplitude refitted). Regenerate: "
-                 "`python -m analysis.studies.paper_diagnosis`.", "",
-                 "**Verdict:** " + diag.verdict, "", "![ranking](diagnose/ranking.png)", ""]
-        if added is not None:
-            lines += ["**Added:** " + added.summary(), ""]
-        cols = [c for c in table.columns if "sd" not in c]
-        lines += ["| condition | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
-        for cid, r in table.iterrows():
-            lines.append("| %s | " % cid + " | ".join("%.3f" % r[c] if "err" not in c
-                                                      else "%+.2f" % r[c] for c in cols) + " |")
-        lines += ["", "mean |v error|: calibrated twin %.2f %% (max %.2f %%)"
-                  % (summary["mean_abs_v_err_calibrated_pct"],
-                     summary["max_abs_v_err_calibrated_pct"])]
-        if "mean_abs_v_err_with_effect_pct" in summary:
-            lines[-1] += ("; twin rerun with %s: %.2f %% (max %.2f %%)"
-                          % (name, summary["mean_abs_v_err_with_effect_pct"],
-                             summary["max_abs_v_err_with_effect_pct"]))
-        lines.append("")
-        (tmp / "README.md").write_text("\n".join(lines))
+        (tmp / "README.md").write_text(paper_diagnosis_page(diag, added, table, summary, name))
         publish_dir(tmp, out_dir, protected)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.report import refit_coverage_page
 
 LOOPS_DIR = RESULTS_DIR / "open_world" / "loop_effects"
 DATASETS_DIR = RESULTS_DIR / "open_world" / "effects"
@@ -131,19 +132,9 @@ def main(argv=None):
         results.append(json.loads(f.read_text()))
     t = summary_rows(results)
     t.to_csv(out / "summary.csv", index=False)
-    n = len(t)
-    lines = ["# Twin-corrected refits on the open-world loop's answers (SYNTHETIC)", "",
-             "95 %% interval covers the true strength: before %d / %d, after %d / %d "
-             "(goal >= 90 %%)" % (t["covered_before"].sum() if n else 0, n,
-                                  t["covered_after"].sum() if n else 0, n), "",
-             "| dataset | effect | truth | model fit | z | refitted | z | reruns |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in t.itertuples():
-        lines.append("| %s | %s | %.3g | %.3g +- %.2g | %+.1f | %.3g +- %.2g | %+.1f | %d |"
-                     % (r.dataset, r.effect, r.truth, r.before, r.before_se, r.z_before,
-                        r.after, r.after_se, r.z_after, r.reruns))
-    (out / "README.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines[:3]))
+    text = refit_coverage_page(t)
+    (out / "README.md").write_text(text)
+    print("\n".join(text.split("\n")[:3]))
     return 0
 
 

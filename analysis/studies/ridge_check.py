@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.report import ridge_check_page
 
 DATASETS = RESULTS_DIR / "open_world" / "effects"
 LOOPS = RESULTS_DIR / "open_world" / "loop_effects"
@@ -110,9 +111,7 @@ def main(argv=None) -> int:
         print(lines[-1], flush=True)
     pd.concat(rows).to_csv(OUT / "ridge_check.csv", index=False, float_format="%.6g")
     (OUT / "README.md").write_text(
-        "# Ridge check: the twin at the true and at the fitted point (SYNTHETIC)\n\n"
-        + __doc__.split("\n\n", 1)[1].split("Example::")[0] + "\n"
-        + "\n".join("- " + x for x in lines) + "\n")
+        ridge_check_page(__doc__.split("\n\n", 1)[1].split("Example::")[0], lines))
     return 0
 
 

@@ -10,7 +10,6 @@ a dataset's conditions (:func:`library_at`); the impact pattern rule (:func:`in_
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ import pandas as pd
 
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
 from analysis.run_configs import condition_runs
-from analysis.twin_model.catalog import CANDIDATES, Candidate
+from analysis.twin_model.catalog import CANDIDATES
 
 SIGNATURE_DIR = RESULTS_DIR / "signatures"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"
@@ -238,71 +237,10 @@ def plot_library(summ, path):
 
 
 def write_page(summ, meta, folder):
-    """README.md of the library: what it is, the signatures table, the figure."""
-    full = summ
-    summ = top_level(summ)
-    cands = {c["name"]: c for c in meta["candidates"]}
-    a = summ[summ["label"] == "none"]
-    rel = 100 * float(np.sqrt(np.nanmean((a["v_sd_m_s"] / a["v_mean_m_s"]) ** 2)))
-    piv = summ.pivot(index="condition_id", columns="label", values="dv_pct")
-    piv = piv.loc[list(a["condition_id"]), [c for c in piv.columns if c != "none"]]
-    lines = ["# Effect signatures of the twin", "",
-             "The twin at the calibrated parameters %s, every DEM catalog effect at the top of "
-             "its diagnose range, %d seeds per condition (the same seeds as the anchor without "
-             "effects). Regenerate with `make signatures` (`analysis/twin_model/`); used by "
-             "`analysis.twin_model.TwinModel` (diagnose's model), the hidden-effect suite and "
-             "`make hidden-demo`." % (meta["theta_ref"], meta["replicates"]), "",
-             "Replicate scatter of one run's v_mean at the anchor: %.2f %% (pooled over the "
-             "conditions); a difference of two %d-seed means has a standard error of %.2f %%."
-             % (rel, meta["replicates"], rel * math.sqrt(2.0 / meta["replicates"])), "",
-             "Change of v_mean [%] against the anchor:", "",
-             "| condition | " + " | ".join("%s (%s = %g)" % (
-                 c, cands[c]["param"], Candidate(**dict(cands[c], fixed=())).param_value(
-                     cands[c]["s_max"])) for c in piv.columns) + " |",
-             "|---|" + "---|" * len(piv.columns)]
-    for cid, r in piv.iterrows():
-        lines.append("| %s | " % cid + " | ".join("%+.2f" % v for v in r) + " |")
-    df = summ.pivot(index="condition_id", columns="label", values="df_col_hz")
-    lines += ["", "Change of f_col [1/s] (a 0.5 s record counts in steps of 2 /s):", "",
-              "| condition | " + " | ".join(piv.columns) + " |", "|---|" + "---|" * len(piv.columns)]
-    for cid in piv.index:
-        lines.append("| %s | " % cid + " | ".join("%+.1f" % df.loc[cid, c] for c in piv.columns)
-                     + " |")
-    from analysis.flights import FLIGHT_OBSERVABLES
-    if all(k in summ.columns and summ[k].notna().any() for k in FLIGHT_OBSERVABLES):
-        a = summ[summ["label"] == "none"].set_index("condition_id")
-        lines += ["", "Impact observables of the jar tracks (`analysis.flights`), mean over the "
-                  "conditions: the anchor, and each effect's change at the top of its range "
-                  "in units of one run's scatter (pooled over labels) - what a jar track "
-                  "adds to v_mean and f_col:", "",
-                  "| | " + " | ".join(FLIGHT_OBSERVABLES) + " |",
-                  "|---|" + "---|" * len(FLIGHT_OBSERVABLES),
-                  "| anchor | " + " | ".join("%.4g" % a[k].mean() for k in FLIGHT_OBSERVABLES)
-                  + " |"]
-        pooled = {k: float(np.sqrt(np.nanmean(summ[k + "_sd"] ** 2))) for k in
-                  FLIGHT_OBSERVABLES}
-        for lab in piv.columns:
-            d = summ[summ["label"] == lab].set_index("condition_id").loc[a.index]
-            cells = []
-            for k in FLIGHT_OBSERVABLES:
-                dz = (d[k] - a[k]) / pooled[k] if pooled[k] > 0 else (d[k] - a[k]) * np.nan
-                cells.append("%+.1f" % float(dz.mean()))
-            lines.append("| %s | " % lab + " | ".join(cells) + " |")
-    if "n_late_pattern" in full.columns:
-        late = full[full["n_late_pattern"] > 0]
-        if len(late):
-            lines += ["", "Levels where runs hit the wall in the 'late' pattern (approach speed "
-                      "< %.0f %% of the anchor's: a second steady flight; **mixed** = the seeds "
-                      "differ, so the level's mean averages two motions):" % (
-                          100 * LATE_V_IN_FRAC), "",
-                      "| effect | strength | condition | late / runs | v_mean [m/s] |",
-                      "|---|---|---|---|---|"]
-            for r in late.itertuples():
-                lines.append("| %s | %.4g | %s | %d / %d%s | %.3f |" % (
-                    r.label, r.strength, r.condition_id, r.n_late_pattern, r.n,
-                    " (**mixed**)" if r.n_late_pattern < r.n else "", r.v_mean_m_s))
-    lines += ["", "![signatures](signatures.png)", ""]
-    (Path(folder) / "README.md").write_text("\n".join(lines))
+    """README.md of the library (text: :func:`analysis.report.signatures_page`)."""
+    from analysis.report import signatures_page
+    (Path(folder) / "README.md").write_text(signatures_page(summ, top_level(summ), meta,
+                                                            LATE_V_IN_FRAC))
 
 
 def library_at(conditions, library):
