@@ -21,10 +21,15 @@ A stage that writes one FILE (a movie, say) follows the same rule through
 :func:`check_out_file`: the same places are refused, and an existing file is replaced only when
 the stage recognises it as its own earlier output (the stage says how, e.g. from a sidecar it
 wrote beside the file holding the file's hash).
+
+Every single file a stage writes goes through :func:`atomic_file`: written under a temporary
+name beside its target and renamed over it only when complete, so a reader never sees half a
+file and a failure leaves the old one.
 """
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 #: file put in every published folder: "this project wrote this folder; it may replace it"
@@ -193,3 +198,23 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out"):
         raise OutputError("%s %s already exists and is not an earlier output of this command; "
                           "give a new file name" % (flag, out_file))
     return out
+
+
+@contextmanager
+def atomic_file(path):
+    """``with atomic_file(path) as tmp:`` write to ``tmp`` (a fresh name beside ``path`` with
+    the same suffix, so writers that pick a format from it still do); when the block ends
+    without an error ``tmp`` is renamed over ``path``, otherwise it is removed and ``path`` is
+    left as it was. The parent folder is made when missing."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=".%s.tmp-" % path.stem, suffix=path.suffix,
+                                dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

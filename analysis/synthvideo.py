@@ -740,10 +740,9 @@ def noise_blur_study(out_csv=None, frequencies=(22.5, 30.0), duration_s: float =
                           f" px, v err {row['v_err_pct']:+.3f} %, f_col err "
                           f"{row['f_col_err_hz']:+.2f} /s", file=sys.stderr)
     df = pd.DataFrame(rows)
-    out_csv.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_csv.with_name(f".tmp-{out_csv.name}-{os.getpid()}")
-    df.to_csv(tmp, index=False, float_format="%.6g")
-    os.replace(tmp, out_csv)
+    from analysis.atomic_dir import atomic_file
+    with atomic_file(out_csv) as tmp:
+        df.to_csv(tmp, index=False, float_format="%.6g")
     return df
 
 

@@ -284,3 +284,19 @@ def test_hidden_suite_failure_leaves_the_earlier_suite(tmp_path, monkeypatch, ca
     assert tree_hash(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["suite"]
     capsys.readouterr()
+
+
+def test_atomic_file_replaces_only_when_complete(tmp_path):
+    from analysis.atomic_dir import atomic_file
+    target = tmp_path / "sub" / "table.csv"
+    with atomic_file(target) as tmp:
+        assert tmp.suffix == ".csv" and tmp.parent == target.parent and tmp != target
+        tmp.write_text("a,b\n1,2\n")
+        assert not target.exists()                 # nothing visible before the end
+    assert target.read_text() == "a,b\n1,2\n"
+    with pytest.raises(RuntimeError):
+        with atomic_file(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("writer failed")
+    assert target.read_text() == "a,b\n1,2\n"      # the old file stays, no temporary left
+    assert sorted(p.name for p in target.parent.iterdir()) == ["table.csv"]

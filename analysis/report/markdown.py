@@ -2,8 +2,6 @@
 tables, the SYNTHETIC banner, and the atomic write of one page file."""
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -60,14 +58,8 @@ def has_tabulate():
 
 def write_atomic(path, text):
     """Write ``text`` to a temporary file beside ``path`` and rename it over ``path``."""
+    from analysis.atomic_dir import atomic_file
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_file(path) as tmp:
+        tmp.write_text(text)
     return path

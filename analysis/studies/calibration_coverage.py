@@ -13,7 +13,6 @@ This checks the machinery (design, emulator, likelihood, MCMC), not the real twi
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -77,9 +76,9 @@ def main(argv=None):
     args = p.parse_args(argv)
     with threadpool_limits(1):
         df = run(args.trials, args.seed, n_steps=args.n_steps, burn=args.n_steps // 3)
-    tmp = args.out + ".tmp"
-    df.to_csv(tmp, index=False, float_format="%.6g")
-    os.replace(tmp, args.out)
+    from analysis.atomic_dir import atomic_file
+    with atomic_file(args.out) as tmp:
+        df.to_csv(tmp, index=False, float_format="%.6g")
     for k in cal.CALIBRATED:
         z = (df["mean_" + k] - df["truth_" + k]) / df["sd_" + k]
         print("%-17s 95%% coverage %d/%d, RMS z %.2f, mean |error| %.3g, mean sd %.3g"

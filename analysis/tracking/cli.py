@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 
@@ -17,11 +16,10 @@ from analysis.tracking.video import FPS_TOLERANCE, check_fps
 
 def write_track(track: pd.DataFrame, out) -> Path:
     """Write a track CSV atomically (temp file, then rename)."""
+    from analysis.atomic_dir import atomic_file
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".tmp-{out.name}-{os.getpid()}")
-    track.to_csv(tmp, index=False)
-    os.replace(tmp, out)
+    with atomic_file(out) as tmp:
+        track.to_csv(tmp, index=False)
     return out
 
 
