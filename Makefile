@@ -12,17 +12,20 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        signatures hidden-demo bench-hidden loop open-world calibrate apparatus
+        signatures hidden-demo bench-hidden loop open-world calibrate apparatus effect-transfer
 
 help:
-	@echo "make demo   - the twin at the paper's 8 conditions -> results/demo/"
+	@echo "make demo   - the twin on Table 3, then the loop (compare, diagnose, add, twin rerun) -> results/demo/README.md, results/demo/loop/"
 	@echo "make test   - the test suite (installs YADE and the venv when missing)"
-	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks"
-	@echo "make hidden-demo - hide an effect in twin data, find it blind, add it -> results/hidden_demo/"
-	@echo "make bench-hidden - the hidden-effect suite (rank-1 rate, decoy, nothing-missing, chi2)"
-	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset"
-	@echo "make open-world - blind open-world datasets and the loop on them -> results/open_world/"
-	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/"
+	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset -> OUT/report.md, diagnosis.csv, staircase.csv, loop.json"
+	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
+	@echo "make hidden-demo - hide an effect in twin data, find it blind, add it -> results/hidden_demo/report.md"
+	@echo "make bench-hidden - the hidden-effect suite -> results/hidden_suite/README.md, summary.json"
+	@echo "make open-world - blind open-world datasets and the loop on them -> results/open_world/datasets/, loop/README.md"
+	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
+	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
+	@echo "make effect-transfer - effect responses across conditions (leave-one-out) -> results/studies/effect_transfer/"
+	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"
 	@echo "make geometry | facet-study | timestep-study | signatures - regenerate committed studies"
 
 setup: venv yade
@@ -116,6 +119,10 @@ loop: setup
 open-world: setup
 	$(VPY) -m analysis.studies.open_world_data
 	$(VPY) -m analysis.open_suite
+
+# an effect's response predicted at each condition from the others (committed runs, seconds)
+effect-transfer: venv
+	$(VPY) -m analysis.studies.effect_transfer
 
 calibrate: setup
 	$(VPY) -m analysis.calibrate --out results/calibration
