@@ -72,7 +72,7 @@ bench-dem: setup
 bench-profile: setup
 	$(VPY) -m analysis.bench.profile
 
-# the whole loop on 6 conditions never run: empty cache, then cached (about 40 min)
+# the whole loop on 6 conditions never run: empty cache, then cached (about 40 min on 2 cores)
 bench-loop: setup
 	$(VPY) -m analysis.bench.loop_cold
 
