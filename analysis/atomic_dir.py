@@ -22,6 +22,9 @@ A stage that writes one FILE (a movie, say) follows the same rule through
 the stage recognises it as its own earlier output (the stage says how, e.g. from a sidecar it
 wrote beside the file holding the file's hash).
 
+:func:`output_dir` joins the two: ``with output_dir(out, protected) as tmp:`` writes into
+``tmp`` and publishes it when the block ends, or removes it on an error.
+
 Every single file a stage writes goes through :func:`atomic_file`: written under a temporary
 name beside its target and renamed over it only when complete, so a reader never sees half a
 file and a failure leaves the old one.
@@ -217,4 +220,20 @@ def atomic_file(path):
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def output_dir(out_dir, protected=(), area="results", flag="--out", own_names=None,
+               is_own=None):
+    """``with output_dir(out, protected) as tmp:`` - :func:`staging_dir`, the block writes into
+    ``tmp``, then :func:`publish_dir`; on any error ``tmp`` is removed and ``out_dir`` is left as
+    it was."""
+    kw = dict(area=area, flag=flag, own_names=own_names, is_own=is_own)
+    tmp = staging_dir(out_dir, protected, **kw)
+    try:
+        yield tmp
+        publish_dir(tmp, out_dir, protected, **kw)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,7 +55,7 @@ import pandas as pd
 from scipy.stats import qmc
 
 from analysis import run_configs
-from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+from analysis.atomic_dir import check_out_dir, output_dir
 from analysis.config import CALIBRATION_DIR, PAPER_TABLE3_DIR
 from analysis.emulator import GPEmulator
 from analysis.measurements import DatasetError as MeasurementError
@@ -502,13 +501,8 @@ def write_results(res, out_dir, measurements_name="", protected=()):
     """Write the calibration's tables and figures into ``out_dir`` atomically (temporary folder
     beside it, swapped in when complete); an ``out_dir`` that is not ours to replace, or touches
     a ``protected`` input, is refused (:func:`analysis.atomic_dir.check_out_dir`)."""
-    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
-    try:
+    with output_dir(out_dir, protected) as tmp:
         _write_results(res, tmp, measurements_name)
-        publish_dir(tmp, out_dir, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return Path(out_dir)
 
 

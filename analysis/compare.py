@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +48,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.atomic_dir import publish_dir, staging_dir
+from analysis.atomic_dir import output_dir
 from analysis.report import comparison_page
 from scipy import signal, stats
 
@@ -487,17 +486,12 @@ def write_report(cmp: Comparison, dataset: Dataset, out_dir, overwrite: bool = T
 
     out_dir = Path(out_dir)
     protected = [dataset.path] if dataset.path is not None else []
-    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
-    try:
+    with output_dir(out_dir, protected) as tmp:
         cmp.to_frame().to_csv(tmp / "comparison.csv", index=False)
         figs = write_compare_figures(cmp, dataset, tmp)
         (tmp / "comparison.md").write_text(comparison_page(cmp, dataset, figs))
         if out_dir.exists() and not overwrite:
             raise FileExistsError(out_dir)
-        publish_dir(tmp, out_dir, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir
 
 

@@ -147,9 +147,8 @@ def main(argv=None):
         print("analysis.demo: error: replicates, workers and record-s must be positive",
               file=sys.stderr)
         return 2
-    import shutil
     from pathlib import Path
-    from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import OutputError, check_out_dir, output_dir
     from analysis.plotting.demo_plots import write_demo_figure
     from analysis.sweep import run_sweep
     try:
@@ -202,8 +201,7 @@ def main(argv=None):
     paper_dem = ("paper parameters vs paper DEM: mean |v diff| %.2f %%, max %.2f %%"
                  % (dem.abs().mean(), dem.abs().max()))
     out = Path(a.out)
-    tmp = staging_dir(out)
-    try:
+    with output_dir(out) as tmp:
         table.to_csv(tmp / "comparison.csv", index=False, float_format="%.4g")
         cal.to_csv(tmp / "calibrated.csv", index=False, float_format="%.4g")
         write_demo_figure(table, tmp / "demo.png")
@@ -213,10 +211,6 @@ def main(argv=None):
                                 "replicates": a.replicates, "record_s": a.record_s,
                                 "wall_s": time.time() - t0, "apparatus": paper_words},
                    extra=[paper_meas, paper_dem, cal_line + " (%s)" % cal_words])
-        publish_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     show = ["condition_id", "v_mean_measured_m_s", "v_mean_twin_observed_m_s",
             "v_mean_twin_sd_m_s", "v_diff_pct", "v_mean_dem_paper_m_s", "f_col_measured_hz",
             "f_col_twin_observed_hz", "motion_modes"]

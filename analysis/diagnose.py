@@ -91,7 +91,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from analysis.atomic_dir import publish_dir, staging_dir
+from analysis.atomic_dir import output_dir
 from scipy import optimize, stats
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
@@ -1029,15 +1029,13 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
     ``out_dir`` that is not ours to replace, or touches a ``protected`` input, is refused
     (:func:`analysis.atomic_dir.check_out_dir`). ``synthetic`` (the dataset's own flag,
     ``Dataset.synthetic``) marks the page and the figures SYNTHETIC."""
-    import shutil
     from pathlib import Path
 
     from analysis.plotting.diagnose_plots import write_diagnosis_figures
     from analysis.report import diagnosis_page
 
     out_dir = Path(out_dir)
-    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
-    try:
+    with output_dir(out_dir, protected) as tmp:
         diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
         diag.structure.to_csv(tmp / "structure.csv", index=False)
         write_diagnosis_figures(diag, tmp, added.staircase if added is not None else None,
@@ -1046,10 +1044,6 @@ def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = No
             added.staircase.to_csv(tmp / "staircase.csv", index=False)
             added.to_frame().reset_index().to_csv(tmp / "before_after.csv", index=False)
         (tmp / "diagnosis.md").write_text(diagnosis_page(diag, added, dataset_name, synthetic))
-        publish_dir(tmp, out_dir, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir
 
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -161,18 +160,13 @@ def run_demo(out_dir=HIDDEN_DEMO_DIR, secret_seed=2026, effect_spec=None, say=pr
     a failed run (bad effect, failed twin run) leaves the previous demo untouched. Keywords:
     workers, replicates, noise_seed, verify, runner, runs_dir, library, emulator."""
     from effects import load_effects
-    from analysis.atomic_dir import publish_dir, staging_dir
+    from analysis.atomic_dir import output_dir
     if effect_spec is not None:
         load_effects(effect_spec)            # unknown effect / parameter: fail before any work
     final = Path(out_dir)
-    work = staging_dir(final)
-    try:
+    with output_dir(final) as work:
         summary = _run_demo(work, secret_seed=secret_seed, effect_spec=effect_spec, say=say,
                             **kw)
-        publish_dir(work, final)
-    except BaseException:
-        shutil.rmtree(work, ignore_errors=True)
-        raise
     say("wrote %s/report.md (%.0f s)" % (final, summary["times"]["total_s"]))
     return summary
 

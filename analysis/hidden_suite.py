@@ -316,14 +316,13 @@ def main(argv=None):
     if a.noise_seeds < 1:
         print("analysis.hidden_suite: error: --noise-seeds must be >= 1", file=sys.stderr)
         return 2
-    from analysis.atomic_dir import MARKER, check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import MARKER, check_out_dir, output_dir
     out = Path(a.out)
     protected = inputs()
     t0 = time.perf_counter()
     try:
         check_out_dir(out, protected)   # before anything is read, removed or run
-        tmp = staging_dir(out, protected)
-        try:
+        with output_dir(out, protected) as tmp:
             if not a.fresh and out.is_dir():
                 # resume: the earlier suite's rows and datasets are reused, not recomputed
                 shutil.copytree(out, tmp, dirs_exist_ok=True,
@@ -338,10 +337,6 @@ def main(argv=None):
                 summ0 = write_report(rows0, sub)
                 _append_comparison(tmp / "README.md", summ, summ0, per_effect(rows),
                                    per_effect(rows0))
-            publish_dir(tmp, out, protected)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
     except (FileNotFoundError, RuntimeError, ValueError) as exc:  # OutputError: ValueError
         print("analysis.hidden_suite: error: %s" % exc, file=sys.stderr)
         return 2

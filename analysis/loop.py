@@ -51,7 +51,6 @@ import argparse
 import dataclasses
 import json
 import math
-import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -61,7 +60,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis.atomic_dir import OutputError, check_out_dir, publish_dir, staging_dir
+from analysis.atomic_dir import OutputError, check_out_dir, output_dir
 from analysis.conditions import ConditionError, label, physics_table
 from analysis.diagnose import BaseParameter, calibrate_base, diagnose
 from analysis.measurements import DatasetError, load_dataset
@@ -945,8 +944,7 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
     from analysis.report import loop_page
 
     out_dir = Path(out_dir)
-    tmp = staging_dir(out_dir, protected)
-    try:
+    with output_dir(out_dir, protected) as tmp:
         res.diagnosis.to_csv(tmp / "diagnosis.csv", index=False)
         res.staircase.to_csv(tmp / "staircase.csv", index=False)
         res.steps.to_csv(tmp / "steps.csv", index=False)
@@ -966,10 +964,6 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
         write_loop_figures(res.staircase, res.diagnoses[0] if res.diagnoses else None, tmp,
                            dataset)
         (tmp / "report.md").write_text(loop_page(res, dataset))
-        publish_dir(tmp, out_dir, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir
 
 

@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.atomic_dir import publish_dir, staging_dir
+from analysis.atomic_dir import output_dir
 
 #: default relative sd of the measured mean speed when v_mean_sd_m_s is empty
 DEFAULT_V_REL_SD = 0.015
@@ -633,8 +633,7 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
     ds = validate(dataset)
     if path.exists() and not overwrite:
         raise FileExistsError("%s exists (pass overwrite=True to replace it)" % path)
-    tmp = staging_dir(path, area="datasets")  # makes the parent folder too
-    try:
+    with output_dir(path, area="datasets") as tmp:
         with open(tmp / "dataset.json", "w") as fh:
             json.dump(ds.meta, fh, indent=2)
             fh.write("\n")
@@ -652,10 +651,6 @@ def write_dataset(dataset: Dataset, path, overwrite: bool = False) -> Path:
                 shutil.copy2(f, tmp / "videos" / ("%s%s" % (cid, Path(f).suffix)))
         if ds.yields is not None:
             ds.yields.to_csv(tmp / "yields.csv", index=False, na_rep="")
-        publish_dir(tmp, path, area="datasets")
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return path
 
 

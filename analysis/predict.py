@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -436,7 +435,7 @@ def _compare_inputs(args):
 
 def _run_compare(args) -> Path:
     from analysis import yield_data
-    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import check_out_dir, output_dir
     from analysis.plotting.surrogate_plots import write_yield_parity_figure
 
     protected = _compare_inputs(args)
@@ -453,8 +452,7 @@ def _run_compare(args) -> Path:
               else load_surrogate(None, None, kinds=sur.KINDS))
     table = compare_yield_sources(kfit, twin, bundle, ds.conditions, ds.yields)
     summ = summarize_comparison(table)
-    tmp = staging_dir(args.out, protected)  # makes the parent folder too
-    try:
+    with output_dir(args.out, protected) as tmp:
         table.to_csv(tmp / "yield_comparison.csv", index=False)
         summ.to_csv(tmp / "table6_abs_errors.csv", index=False)
         (tmp / "source.json").write_text(json.dumps(
@@ -465,10 +463,6 @@ def _run_compare(args) -> Path:
         write_yield_parity_figure(table, tmp / "fig14_yield_parity.png", list(bundle.models),
                                   twin_source=str(twin["source"].iloc[0]),
                                   surrogate_source=bundle.source, synthetic=ds.synthetic)
-        publish_dir(tmp, args.out, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     print(summ.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
     print(f"wrote {args.out}")
     return args.out

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -291,7 +290,7 @@ def main(argv=None):
                    help="random seed of the emulator fit and the Sobol sampling [-] "
                         "(default %(default)s)")
     args = p.parse_args(argv)
-    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import check_out_dir, output_dir
     from analysis.emulator import GPEmulator
     from analysis.plotting.calibration_plots import write_sensitivity_figures
     protected = [args.runs_dir]          # the twin's run cache is never an output
@@ -311,18 +310,13 @@ def main(argv=None):
         em.fit(ok, ok)
         sob = emulator_sobol(em, CONTACT_BOUNDS, n_base=args.n_base, seed=args.seed)
         out = Path(args.out)
-        tmp = staging_dir(out, protected)  # makes the parent folder too
-        try:
+        with output_dir(out, protected) as tmp:
             study.runs.to_csv(tmp / "figure8_runs.csv", index=False, float_format="%.6g")
             study.summary.to_csv(tmp / "figure8_grid.csv", index=False, float_format="%.6g")
             sob.to_frame().to_csv(tmp / "sobol_v_mean.csv", float_format="%.5g")
             em.loo_.to_csv(tmp / "emulator_loo.csv", float_format="%.5g")
             write_sensitivity_figures(study.summary, study.target_m_s, study.tol_m_s,
                                       sob.to_frame(), tmp)
-            publish_dir(tmp, out, protected)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
     except (ValueError, OSError) as exc:   # OutputError is a ValueError
         print("analysis.sensitivity: error: %s" % exc, file=sys.stderr)
         return 2

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -727,7 +726,7 @@ def _inputs(args):
 
 
 def run(args) -> Path:
-    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import check_out_dir, output_dir
     from analysis.plotting.surrogate_plots import write_surrogate_figures
 
     protected = _inputs(args)
@@ -761,8 +760,7 @@ def run(args) -> Path:
         lc = learning_curve(table, kinds=[k for k in args.kinds if k != "rf"] or args.kinds,
                             n_repeats=args.lc_repeats, random_state=args.seed, truth=truth)
 
-    tmp = staging_dir(args.out, protected)  # makes the parent folder too
-    try:
+    with output_dir(args.out, protected) as tmp:
         pd.concat([r.to_frame() for r in results.values()]).to_csv(tmp / "metrics.csv", index=False)
         pd.concat([r.predictions.assign(kind=k) for k, r in results.items()]).to_csv(
             tmp / "predictions.csv", index=False)
@@ -789,10 +787,6 @@ def run(args) -> Path:
         bundle.save(tmp / "surrogate.joblib")
         write_surrogate_figures(tmp, {k: r.predictions for k, r in results.items()}, lc,
                                 source, outputs=OUTPUTS)
-        publish_dir(tmp, args.out, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return args.out
 
 

@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -254,19 +253,14 @@ def write_yield_dataset(out_dir: Path, conditions: pd.DataFrame, yields: pd.Data
                         meta: dict, summary: pd.DataFrame | None = None) -> Path:
     """Write dataset.json, conditions.csv, yields.csv (and summary.csv) atomically; a folder that
     is not ours to replace is refused (:func:`check_yield_out`)."""
-    from analysis.atomic_dir import publish_dir, staging_dir
+    from analysis.atomic_dir import output_dir
     out_dir = Path(out_dir)
-    tmp = staging_dir(out_dir, **_out_rule())  # makes the parent folder too
-    try:
+    with output_dir(out_dir, **_out_rule()) as tmp:
         (tmp / "dataset.json").write_text(json.dumps(meta, indent=1))
         conditions.to_csv(tmp / "conditions.csv", index=False)
         yields.to_csv(tmp / "yields.csv", index=False)
         if summary is not None:
             summary.to_csv(tmp / "summary.csv", index=False)
-        publish_dir(tmp, out_dir, **_out_rule())
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir
 
 

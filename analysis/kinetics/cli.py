@@ -11,7 +11,6 @@ used. The output folder is checked before any work and replaced atomically
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 from pathlib import Path
 
@@ -60,7 +59,7 @@ def _inputs(args):
 
 def run(args) -> Path:
     from analysis import yield_dataset
-    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import check_out_dir, output_dir
     from analysis.plotting.kinetics_plots import write_kinetics_figures
 
     protected = _inputs(args)
@@ -80,8 +79,7 @@ def run(args) -> Path:
                        n_boot=args.n_boot, random_state=args.seed, source=src)
     data["regime_fit"] = regime_of(data["e_tot_j"], fit)
 
-    tmp = staging_dir(args.out, protected)  # makes the parent folder too
-    try:
+    with output_dir(args.out, protected) as tmp:
         inputs.to_csv(tmp / "energy_inputs.csv", index=False)
         energy.to_csv(tmp / "energy_per_condition.csv", index=False)
         data.to_csv(tmp / "yields_with_energy.csv", index=False)
@@ -91,10 +89,6 @@ def run(args) -> Path:
         fit.save(tmp / "kinetics_fit.json")
         write_kinetics_figures(tmp, fit, data, inputs, model_curves(fit, data, energy),
                                ds.synthetic)
-        publish_dir(tmp, args.out, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return args.out
 
 

@@ -148,7 +148,7 @@ def main(argv=None) -> int:
         print("effect_transfer: error: --min-conditions must be >= 4 (a plane has 3 "
               "coefficients), got %d" % a.min_conditions, file=sys.stderr)
         return 2
-    from analysis.atomic_dir import publish_dir, staging_dir
+    from analysis.atomic_dir import output_dir
     from analysis.flights import FLIGHT_OBSERVABLES
     runs = collect()
     if not len(runs):
@@ -162,17 +162,11 @@ def main(argv=None) -> int:
                                                     "n_conditions"]].median()
             .reset_index() if len(tab) else tab)
     out = Path(a.out)
-    tmp = staging_dir(out)
-    try:
+    with output_dir(out) as tmp:
         groups.to_csv(tmp / "groups.csv", index=False)
         tab.to_csv(tmp / "transfer.csv", index=False)
         text = effect_transfer_page(len(runs), runs["anchor_key"].nunique(), summ)
         (tmp / "README.md").write_text(text)
-    except BaseException:
-        import shutil
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    publish_dir(tmp, out)
     print("\n".join(text.split("\n")[:-1][-len(summ) - 2:]) if len(summ)
           else "no group with enough conditions")
     print("wrote %s" % out)

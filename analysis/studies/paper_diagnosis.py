@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from pathlib import Path
 
@@ -39,7 +38,7 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
     beside it, swapped in when complete); an ``out_dir`` that is not ours to replace, or touches
     an input, is refused before any work (:func:`analysis.atomic_dir.check_out_dir`)."""
     from analysis import twin_model
-    from analysis.atomic_dir import check_out_dir, publish_dir, staging_dir
+    from analysis.atomic_dir import check_out_dir, output_dir
     from analysis.diagnose import add_effect, diagnose, write_diagnosis
     from analysis.hidden_demo import twin_predictions
     from analysis.measurements import load_dataset
@@ -62,8 +61,7 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
         added = add_effect(prob["predict"], obs, prob["base_params"], prob["effects"], name,
                            model_se=prob["model_se"], effect_se=prob.get("effect_se"))
         say(added.summary())
-    tmp = staging_dir(out_dir, protected)  # makes the parent folder too
-    try:
+    with output_dir(out_dir, protected) as tmp:
         write_diagnosis(diag, tmp / "diagnose", added, ds.name)
         meas = ds.summary.set_index("condition_id")
         table = pd.DataFrame({"condition_id": ds.conditions["condition_id"]}).set_index(
@@ -107,10 +105,6 @@ def run(out_dir=OUT_DIR, add=None, replicates=2, workers=2, verify=True, say=pri
                 theta=table.attrs["theta"], effect=table.attrs["effect"])
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
         (tmp / "README.md").write_text(paper_diagnosis_page(diag, added, table, summary, name))
-        publish_dir(tmp, out_dir, protected)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     say("wrote %s" % out_dir)
     return summary
 

@@ -135,10 +135,9 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
                   levels=None):
     """Run (cached) and write the signature library: signature_runs.csv, signatures.csv,
     signatures.png, library.json. Returns the summary table."""
-    from analysis.atomic_dir import publish_dir, staging_dir
+    from analysis.atomic_dir import output_dir
     from analysis.measurements import load_dataset
     from analysis.sweep import run_sweep
-    import shutil
 
     if conditions is None:
         conditions = load_dataset(PAPER_TABLE3_DIR).conditions
@@ -162,8 +161,7 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
     summ = summarise_library(runs)
     design = design_flights(runs_dir=runs_dir)
     out_dir = Path(out_dir)
-    tmp = staging_dir(out_dir)
-    try:
+    with output_dir(out_dir) as tmp:
         if design is not None:
             design.to_csv(tmp / DESIGN_FLIGHTS_FILE, index=False)
         runs.to_csv(tmp / "signature_runs.csv", index=False)
@@ -179,10 +177,6 @@ def build_library(out_dir=SIGNATURE_DIR, replicates=2, workers=2, runs_dir=None,
         (tmp / "library.json").write_text(json.dumps(meta, indent=1))
         plot_library(summ, tmp / "signatures.png")
         write_page(summ, meta, tmp)
-        publish_dir(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return summ
 
 
