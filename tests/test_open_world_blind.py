@@ -121,3 +121,32 @@ def test_each_hidden_effect_detectable_beyond_the_other():
     assert each["arc_motion"] > 100.0
     assert 0.0 < each["viscoelastic_restitution"] < 0.1 * each["arc_motion"]
     assert each["viscoelastic_restitution"] < both
+
+
+def test_suite_scores_and_goal_lines_count_what_they_claim():
+    """score() on hand-made loop outputs, goal_lines() counting them: a found effect covered by
+    its interval, a missed one whose twin rerun without effects fits, a false alarm."""
+    import pandas as pd
+    from analysis.open_suite import goal_lines, score
+    stairs = lambda w: pd.DataFrame({"stage": ["baseline", "calibrated",
+                                               "twin rerun (calibrated)", "twin rerun"],
+                                     "chi2_dof": [3.0, 1.1, w, 1.0]})
+    diag = lambda rows: pd.DataFrame(rows, columns=["effect", "rank", "significant", "strength",
+                                                    "strength_se"])
+    truth = lambda eff: {"effects": eff, "base_config": {}}
+    rows = [
+        score("a", {"status": "effects"}, diag([["arc_motion", 1, True, 9.5, 0.4]]),
+              stairs(4.0), truth({"arc_motion": {"curvature_1_m": 9.0}})),
+        score("b", {"status": "nothing_missing"}, diag([["powder_layer", 1, False, 0.1, 0.1]]),
+              stairs(1.2), truth({"powder_layer": {"layer_thickness_m": 0.0003}})),
+        score("c", {"status": "effects"}, diag([["air_drag", 1, True, 0.5, 0.1]]),
+              stairs(1.0), truth({})),
+    ]
+    summ = pd.DataFrame(rows)
+    assert list(summ["first_named"]) == [True, False, False]
+    assert summ["covered"].iloc[0] == True                        # noqa: E712 (9.5 +- 1.96*0.4)
+    L = "\n".join(goal_lines(summ))
+    assert "'nothing missing': 0 / 1" in L
+    assert "named first and significant: 1 / 2" in L
+    assert "of the 1 one-effect datasets missed" in L and "in 1 (the twin" in L
+    assert "a decoy (air_drag) named: 1 / 3" in L
