@@ -224,16 +224,29 @@ class _Corrected:
 
 class _ShiftedModel:
     """A model whose predict is a :class:`_Corrected` one (shifted onto twin reruns at the
-    calibrated point); everything else - noise, effect resolution, parameters, effects -
-    is the model's. Diagnosis on it asks which effect is missing from the twin itself, not
-    from the model's approximation of it."""
+    calibrated point); effect resolution, parameters and effects are the model's. Diagnosis on
+    it asks which effect is missing from the twin itself, not from the model's approximation
+    of it.
 
-    def __init__(self, model, corrected):
+    Its noise is the rerun mean's: near the rerun point the prediction IS the mean of
+    ``rerun_replicates`` twin runs there, not the model's extrapolation from its anchor, whose
+    base responses carry their own noise away from it (1.6 restitution steps off the anchor
+    that noise made the sigmas 1.7 times too large and every chi2 gain 0.4 times as large).
+    It is the anchor mean's standard error (the replicate sd pooled over all the model's
+    groups of seeds, a steadier estimate than one rerun's three seeds) for ``rerun_replicates``
+    seeds."""
+
+    def __init__(self, model, corrected, rerun_replicates=None):
         self._model = model
         self._corr = corrected
+        self._se_scale = (1.0 if rerun_replicates is None else
+                          math.sqrt(float(model.replicates) / float(rerun_replicates)))
 
     def predict(self, theta, effects=None):
         return self._corr.predict(theta, effects)
+
+    def model_se(self, theta=None):
+        return self._model.model_se() * self._se_scale
 
     def __getattr__(self, name):
         return getattr(self._model, name)
@@ -624,7 +637,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             if tc0["corrected"] is not None:
                 cal = tc0["final"]
                 theta = {k: float(cal.params[k]) for k in theta}
-                diag_model = _ShiftedModel(model, tc0["corrected"])
+                diag_model = _ShiftedModel(model, tc0["corrected"], rerun_replicates)
             for row in tc0["stairs"]:
                 st = row["stage"]
                 row = dict(row, stage="twin rerun (calibrated)" if st == "twin rerun"

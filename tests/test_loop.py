@@ -661,3 +661,25 @@ def test_optional_apparatus_effect_joins_the_catalog_only_when_asked(fake_datase
     assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"),
                       "--with-effect", "bogus"]) == 2
     assert "bogus" in capsys.readouterr().err
+
+
+def test_shifted_model_carries_the_rerun_means_noise_not_the_extrapolation():
+    """Diagnosis on the model shifted onto twin reruns: its noise is a rerun mean's (the
+    anchor mean's se for the rerun's seeds), whatever the base point - not the model's own
+    noise away from its anchor, which grows with the distance."""
+    idx = pd.MultiIndex.from_tuples([("a", "v_mean_m_s"), ("prior", "static_friction")])
+
+    class Stub:
+        replicates = 3
+
+        def model_se(self, theta=None):
+            far = 0.0 if theta is None else abs(theta["restitution"] - 0.35) / 0.06
+            return pd.Series([0.01 * (1 + 3 * far), 0.0], index=idx)
+
+    m = loop._ShiftedModel(Stub(), corrected=None, rerun_replicates=3)
+    for r in (0.35, 0.25, 0.45):
+        assert list(m.model_se({"restitution": r})) == [0.01, 0.0]
+    w = loop._Wrapped(m, {}, {"restitution": 0.25})
+    assert list(w.model_se()) == [0.01, 0.0]
+    m12 = loop._ShiftedModel(Stub(), corrected=None, rerun_replicates=12)
+    assert m12.model_se()[("a", "v_mean_m_s")] == pytest.approx(0.005)
