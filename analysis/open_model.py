@@ -47,16 +47,15 @@ import numpy as np
 import pandas as pd
 
 from analysis.conditions import physics_table
-from analysis.parameter_space import BASE_STEPS as PARAMETER_STEPS
+from analysis.parameter_space import BASE_STEPS
 from analysis.run_configs import condition_config, stated_amplitude_m
 from analysis.twin_model import (CANDIDATES, F_COL_SD_FLOOR_HZ, FLIGHT_SD_FLOORS,
                                  OPTIONAL_CANDIDATES,
                                  V_REL_SD_FLOOR, TwinModel, candidates, curvatures, interp_levels,
                                  interp_sd, reference_parameters)
 
-#: base parameters the open model can calibrate, and the step of their response runs (declared
-#: in :mod:`analysis.parameter_space`)
-BASE_STEPS = dict(PARAMETER_STEPS)
+# BASE_STEPS: the base parameters the open model can calibrate and the step of their response
+# runs, declared in analysis.parameter_space (imported above, re-exported here)
 #: base parameters whose response is weak beside the twin's chaos: their response runs use
 #: every anchor seed (``replicates``), the others the first ``diff_replicates``
 NOISY_BASE = ("static_friction", "rolling_friction")

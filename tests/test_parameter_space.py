@@ -22,7 +22,7 @@ def test_readers_share_the_declaration():
     from analysis.twin_model import BASE_BOUNDS
     assert calibrate.CALIBRATED is ps.CALIBRATED and calibrate.PRIORS is ps.PRIORS
     assert BASE_BOUNDS is ps.CALIBRATED
-    assert BASE_STEPS == ps.BASE_STEPS
+    assert BASE_STEPS is ps.BASE_STEPS
     for k, b in sensitivity.CONTACT_BOUNDS.items():
         assert b == ps.CALIBRATED[k]
 
