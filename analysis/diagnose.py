@@ -631,7 +631,6 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     baseline = prob.stage(theta0)
     cal = prob.fit(theta0)
     theta_c = {k: cal.params[k] for k in theta0}
-    mu_c = cal.prediction.to_numpy()
     r = -cal.residuals.to_numpy()            # (measured - model) / sigma
     J = cal.jac.to_numpy()
     n, p = prob.n, len(prob.base)

@@ -693,7 +693,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         if not out or len(reanchors) >= max_reanchor:
             break
         ref = reanchored(model, an["final"].params, out, "all")
-    obs, cal, nb, stair, fs = an["obs"], an["cal"], an["nb"], an["stair"], an["fs"]
+    obs, cal, stair, fs = an["obs"], an["cal"], an["stair"], an["fs"]
     added, final, theta = an["added"], an["final"], an["theta"]
     diags, step_rows = fs["diagnoses"], fs["steps"]
     eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
