@@ -10,8 +10,10 @@ exists is not rerun: the suite resumes), then scores the verdicts against the tr
   strength's 95 % interval covering the truth;
 * chi2/dof after the last add (the model's) and of the twin rerun.
 
-Writes ``summary.csv`` (one row per dataset) and ``README.md`` (the goal lines with their
-counts) into ``--out``.
+Writes ``summary.csv`` (one row per dataset), ``open_suite.png`` (fitted strengths against the
+truth; chi2/dof per dataset) and ``README.md`` (the goal lines with their counts) into
+``--out``. ``--score-only`` scores the loops already in ``--out`` without running any; a ``NOTES.md``
+there (written by hand) is appended to the README.
 
 Example::
 
@@ -29,9 +31,15 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.plotting.open_suite_plots import write_open_suite_figure
 from analysis.report import open_suite_page
 
 OUT_DIR = RESULTS_DIR / "open_world" / "loop"
+#: the suite's figure in ``--out``: strengths against the truth, chi2/dof per dataset
+FIGURE = "open_suite.png"
+#: a hand-written note in ``--out`` (how the loops were run, what the misses mean), appended to
+#: the README each time the suite is scored again
+NOTES = "NOTES.md"
 DATASETS_DIR = RESULTS_DIR / "open_world" / "datasets"
 
 
@@ -46,6 +54,12 @@ def truth_strengths(truth) -> dict:
             continue
         out[name] = c.strength_of(float(params[c.param]))
     return out
+
+
+def strength_ranges() -> dict:
+    """effect -> top of its diagnose range (the figure's unit of strength)."""
+    from analysis.twin_model import candidates
+    return {k: c.s_max for k, c in candidates().items() if c.kind == "dem"}
 
 
 def score(name, loop_info, diagnosis, staircase, truth) -> dict:
@@ -159,8 +173,10 @@ def detectable_each(dataset, truth) -> dict:
             for k in true}
 
 
-def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print, **loop_kw):
-    """Run the loop on every dataset (resuming) and return the summary table."""
+def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
+              score_only=False, **loop_kw):
+    """Run the loop on every dataset (resuming) and return the summary table; ``score_only``:
+    score the datasets whose loop already ran, run none."""
     from analysis.loop import run_loop, write_loop
     from analysis.measurements import load_dataset
     datasets_dir, out_dir = Path(datasets_dir), Path(out_dir)
@@ -173,6 +189,8 @@ def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print, 
         truth = json.loads((datasets_dir / "truth" / ("%s.truth.json" % name)).read_text())
         dest = out_dir / name
         if not (dest / "loop.json").exists():
+            if score_only:
+                continue
             ds = load_dataset(datasets_dir / name)
             log("== %s" % name)
             res = run_loop(ds, log=log, **loop_kw)
@@ -250,8 +268,11 @@ def main(argv=None):
                     help="re-anchorings allowed per loop [-] (0: keep the first model)")
     ap.add_argument("--null-draws", type=int, default=20,
                     help="bootstrap draws per diagnosis step [datasets] (0: nominal threshold only)")
+    ap.add_argument("--score-only", action="store_true",
+                    help="score the datasets whose loop already ran in --out, run no loop")
     a = ap.parse_args(argv)
-    summ = run_suite(a.datasets, a.out, only=a.only, workers=a.workers,
+    summ = run_suite(a.datasets, a.out, only=a.only, score_only=a.score_only,
+                     workers=a.workers,
                      rerun=not a.no_rerun, max_reanchor=a.max_reanchor,
                      null_draws=a.null_draws, log=lambda s: print(s, file=sys.stderr))
     out = Path(a.out)
@@ -261,7 +282,12 @@ def main(argv=None):
     import os
     from analysis.config import REPO_ROOT
     rel = os.path.relpath(Path(a.datasets).resolve(), REPO_ROOT)
-    (out / "README.md").write_text(open_suite_page(summ, lines, rel))
+    if len(summ):
+        write_open_suite_figure(summ, strength_ranges(), out / FIGURE)
+    notes = out / NOTES
+    (out / "README.md").write_text(open_suite_page(
+        summ, lines, rel, FIGURE if len(summ) else None,
+        notes.read_text() if notes.is_file() else ""))
     print("\n".join(lines))
     return 0
 

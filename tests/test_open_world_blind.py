@@ -150,3 +150,27 @@ def test_suite_scores_and_goal_lines_count_what_they_claim():
     assert "named first and significant: 1 / 2" in L
     assert "of the 1 one-effect datasets missed" in L and "in 1 (the twin" in L
     assert "a decoy (air_drag) named: 1 / 3" in L
+
+
+def test_score_only_scores_what_ran_and_draws_the_figure(tmp_path):
+    """--score-only on an output folder holding one of the 20 no-effect loops: that one row is
+    scored (no loop is started for the 19 others), the figure is drawn, the README links it and
+    ends with the folder's hand-written NOTES.md."""
+    import shutil
+
+    import pandas as pd
+    from analysis.open_suite import FIGURE, NOTES, main
+    src = RESULTS_DIR / "open_world" / "loop_nulls_fix" / "null_p00"
+    out = tmp_path / "loops"
+    shutil.copytree(src, out / "null_p00")
+    (out / NOTES).write_text("How these loops were run: a note.\n")
+    assert main(["--datasets", str(RESULTS_DIR / "open_world" / "nulls"), "--out", str(out),
+                 "--score-only"]) == 0
+    summ = pd.read_csv(out / "summary.csv")
+    assert list(summ["dataset"]) == ["null_p00"]
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["null_p00"]
+    assert (out / FIGURE).stat().st_size > 10_000
+    page = (out / "README.md").read_text()
+    assert "(%s)" % FIGURE in page
+    assert page.rstrip().endswith("How these loops were run: a note.")
+    assert "'nothing missing': 1 / 1" in page

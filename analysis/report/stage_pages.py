@@ -286,21 +286,26 @@ def hidden_demo_page(cmp0, diag, added, stair, reveal, times) -> str:
     return "\n".join(lines)
 
 
-def open_suite_page(summ, goal_lines, datasets) -> str:
+def open_suite_page(summ, goal_lines, datasets, figure=None, notes="") -> str:
     """``README.md`` of :mod:`analysis.open_suite`: the goal lines with their counts
     (``goal_lines``: :func:`analysis.open_suite.goal_lines`) and one row per dataset of the
-    summary table ``summ``; ``datasets`` is the datasets' folder as shown on the page."""
+    summary table ``summ``; ``datasets`` is the datasets' folder as shown on the page,
+    ``figure`` the suite's PNG beside the page (None: none), ``notes`` text appended."""
     md = ["# The loop on blind open-world datasets (SYNTHETIC)", "",
           "Datasets: `%s` (the twin once per condition at conditions the paper never ran, "
           "off-anchor base parameters, measurement noise, jar tracks, yields; `*_film`: the "
           "same delivered as films)." % datasets, ""]
     md += ["- " + x for x in goal_lines]
+    if figure:
+        md += ["", "![strengths against the truth; chi2/dof per dataset](%s)" % figure]
     md += ["", "| dataset | hidden | found | chi2/dof calibrated | last | twin rerun |",
            "|---|---|---|---|---|---|"]
     for r in summ.itertuples():
         md.append("| %s | %s | %s | %.2f | %.2f | %.2f |" % (
             r.dataset, r.hidden, r.found, r.chi2_dof_calibrated, r.chi2_dof_last,
             r.chi2_dof_twin_rerun))
+    if notes.strip():
+        md += ["", notes.strip()]
     return "\n".join(md) + "\n"
 
 
