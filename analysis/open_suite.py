@@ -10,7 +10,8 @@ exists is not rerun: the suite resumes), then scores the verdicts against the tr
   strength's 95 % interval covering the truth;
 * chi2/dof after the last add (the model's) and of the twin rerun.
 
-Writes ``summary.csv`` (one row per dataset), ``open_suite.png`` (fitted strengths against the
+Writes ``summary.csv`` (one row per dataset), ``sigma_check.csv`` (per observable, the mean
+z^2 of the no-effect datasets' residuals: do the stated sigmas match the scatter?), ``open_suite.png`` (fitted strengths against the
 truth; chi2/dof per dataset) and ``README.md`` (the goal lines with their counts) into
 ``--out``. ``--score-only`` scores the loops already in ``--out`` without running any; a ``NOTES.md``
 there (written by hand) is appended to the README.
@@ -210,6 +211,56 @@ def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
     return pd.DataFrame(rows)
 
 
+#: the per-observable check of the stated sigmas, written beside summary.csv
+SIGMA_CHECK = "sigma_check.csv"
+
+
+def sigma_check(out_dir, summ) -> pd.DataFrame:
+    """Do the stated sigmas match the scatter? Over the datasets with NO effect hidden (where
+    the twin without effects is the right model), per observable: how many residuals, and the
+    mean z^2 of the data against the loop's final fit (``z_final``) and against the final twin
+    rerun (``z_twin_rerun``) from each loop's comparison.csv - 1 where sigma is right, below 1
+    where it is stated too large (power lost), above where too small (false alarms).
+    Empty without no-effect datasets."""
+    names = list(summ.loc[summ["n_hidden"] == 0, "dataset"])
+    parts = []
+    for n in names:
+        f = Path(out_dir) / n / "comparison.csv"
+        if f.is_file():
+            parts.append(pd.read_csv(f).assign(dataset=n))
+    cols = ["observable", "n", "datasets", "mean_z2_final", "mean_z2_twin_rerun"]
+    if not parts:
+        return pd.DataFrame(columns=cols)
+    d = pd.concat(parts, ignore_index=True)
+    if "z_twin_rerun" not in d:
+        d["z_twin_rerun"] = np.nan
+    g = d.groupby("observable", sort=True)
+    return pd.DataFrame({
+        "n": g["z_final"].count(), "datasets": g["dataset"].nunique(),
+        "mean_z2_final": g["z_final"].apply(lambda z: float(np.nanmean(z ** 2))),
+        "mean_z2_twin_rerun": g["z_twin_rerun"].apply(
+            lambda z: float(np.nanmean(z ** 2)) if z.notna().any() else np.nan),
+    }).reset_index()[cols]
+
+
+def sigma_line(check) -> str | None:
+    """The goal line of :func:`sigma_check` (None when empty): the range of mean z^2 over the
+    observables, and the observables whose mean z^2 lies outside what its count allows (a
+    chi-square's 95 % band for n residuals)."""
+    from scipy import stats
+    c = check[check["n"] > 0]
+    if not len(c):
+        return None
+    z = c["mean_z2_final"].to_numpy(float)
+    n = c["n"].to_numpy(int)
+    lo, hi = stats.chi2.ppf(0.025, n) / n, stats.chi2.ppf(0.975, n) / n
+    out = [("%s %.2f" % (o, v)) for o, v, a, b in zip(c["observable"], z, lo, hi)
+           if not a <= v <= b]
+    return ("stated sigmas on the no-effect datasets: mean z^2 against the final fit per "
+            "observable %.2f-%.2f (1 where sigma is right); outside its 95 %% band: %s"
+            % (np.nanmin(z), np.nanmax(z), ", ".join(out) or "none"))
+
+
 def goal_lines(summ) -> list:
     """The goals with their counts."""
     null = summ[summ["n_hidden"] == 0]
@@ -279,6 +330,12 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     summ.to_csv(out / "summary.csv", index=False)
     lines = goal_lines(summ)
+    check = sigma_check(out, summ) if len(summ) else pd.DataFrame()
+    if len(check):
+        check.to_csv(out / SIGMA_CHECK, index=False)
+        line = sigma_line(check)
+        if line:
+            lines.append(line)
     import os
     from analysis.config import REPO_ROOT
     rel = os.path.relpath(Path(a.datasets).resolve(), REPO_ROOT)

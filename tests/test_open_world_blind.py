@@ -174,3 +174,28 @@ def test_score_only_scores_what_ran_and_draws_the_figure(tmp_path):
     assert "(%s)" % FIGURE in page
     assert page.rstrip().endswith("How these loops were run: a note.")
     assert "'nothing missing': 1 / 1" in page
+
+
+def test_sigma_check_averages_z2_of_the_no_effect_datasets_only(tmp_path):
+    """sigma_check() reads the no-effect loops' comparison.csv (not the effect ones), and
+    sigma_line() flags an observable whose mean z^2 lies outside its chi-square band: z drawn
+    N(0, 1) for v_mean (inside), N(0, 2) for f_col (mean z^2 near 4: flagged)."""
+    import numpy as np
+    import pandas as pd
+    from analysis.open_suite import sigma_check, sigma_line
+    rng = np.random.default_rng(3)
+    for name in ("n1", "n2", "e1"):
+        n = 60
+        zv = rng.normal(0, 1, n) if name != "e1" else np.full(n, 10.0)
+        zf = rng.normal(0, 2, n) if name != "e1" else np.full(n, 10.0)
+        (tmp_path / name).mkdir()
+        pd.DataFrame({"observable": ["v_mean_m_s"] * n + ["f_col_hz"] * n,
+                      "z_final": np.r_[zv, zf], "z_twin_rerun": np.r_[zv, zf]}
+                     ).to_csv(tmp_path / name / "comparison.csv", index=False)
+    summ = pd.DataFrame({"dataset": ["n1", "n2", "e1"], "n_hidden": [0, 0, 1]})
+    c = sigma_check(tmp_path, summ).set_index("observable")
+    assert set(c["datasets"]) == {2} and set(c["n"]) == {120}
+    assert 0.7 < c.loc["v_mean_m_s", "mean_z2_final"] < 1.3
+    assert 3.0 < c.loc["f_col_hz", "mean_z2_final"] < 5.0
+    line = sigma_line(c.reset_index())
+    assert "f_col_hz" in line and "v_mean_m_s" not in line.split("band:")[1]
