@@ -148,7 +148,7 @@ def test_suite_scores_and_goal_lines_count_what_they_claim():
     L = "\n".join(goal_lines(summ))
     assert "'nothing missing': 0 / 1" in L
     assert "named first and significant: 1 / 2" in L
-    assert "of the 1 one-effect datasets missed" in L and "in 1 (the twin" in L
+    assert "in 1 of the 1 one-effect datasets missed and in 0 of the 1 named" in L
     assert "a decoy (air_drag) named: 1 / 3" in L
 
 
