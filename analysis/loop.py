@@ -274,6 +274,16 @@ def joint_fit(model, obs, theta, added):
     return fit
 
 
+def refit_start(model, diag_model, obs, theta_model, added):
+    """Where the final twin-corrected refits start when the diagnosis ran on a corrected model
+    (``diag_model`` is not ``model``) and added effects: the base parameters and the added
+    strengths fitted jointly on ``model`` itself from its own calibrated point ``theta_model``
+    (a FitResult). None otherwise (the refits start from the diagnosis's own fit)."""
+    if not added or diag_model is model:
+        return None
+    return joint_fit(model, obs, theta_model, added)
+
+
 def _stage_row(stage, fit, n_params):
     return {"stage": stage, "chi2": fit.chi2, "dof": fit.dof, "chi2_dof": fit.chi2_dof,
             "p_value": fit.p_value, "n_params": n_params}
@@ -666,9 +676,7 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
         # shift was measured there, so strengths fitted on it started from a biased point
         # (arc 5.00 +- 0.16 for 6.04, 9.9 for 12.8); the diagnosis - which effects - stays
         # on the corrected model
-        start = None
-        if added and diag_model is not model:
-            start = joint_fit(model, obs, theta_model, added)
+        start = refit_start(model, diag_model, obs, theta_model, added)
         return dict(obs=obs, cal=cal, nb=nb, stair=stair, fs=fs, added=added, final=final,
                     theta=theta, pre=pre, refit_start=start)
 

@@ -683,3 +683,33 @@ def test_shifted_model_carries_the_rerun_means_noise_not_the_extrapolation():
     assert list(w.model_se()) == [0.01, 0.0]
     m12 = loop._ShiftedModel(Stub(), corrected=None, rerun_replicates=12)
     assert m12.model_se()[("a", "v_mean_m_s")] == pytest.approx(0.005)
+
+
+def test_final_refits_start_from_the_models_own_joint_fit():
+    """With the diagnosis on a corrected model, the final refits start from the joint fit on
+    the model itself from its calibrated point (not from the corrected model's, which was
+    refitted without the effect): refit_start returns that fit, and nothing where no effect
+    was added or the diagnosis ran on the model."""
+    from analysis.diagnose import calibrate_base
+    m = ToyModel(se=0.002)
+    twin = _off_anchor_twin(m)
+    mu = twin({"a": 2.2, "b": 0.4}, {"E1": 0.3}).to_numpy()
+    obs = pd.DataFrame({"condition_id": m.keys.get_level_values(0),
+                        "observable": m.keys.get_level_values(1), "value": mu, "sd": 0.01})
+    _, cal = calibrate_base(m.predict, obs, m.base_params(), model_se=m.model_se())
+    theta = {k: float(cal.params[k]) for k in ("a", "b")}
+    tc = loop.twin_corrected_refits(
+        m, obs, theta, {}, cal,
+        lambda th, eff: (twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()),
+        max_refits=1, log=lambda s: None)
+    shifted = loop._ShiftedModel(m, tc["corrected"])
+    added = {"E1": 0.2}
+    st = loop.refit_start(m, shifted, obs, theta, added)
+    ref = loop.joint_fit(m, obs, theta, added)
+    for k in ("a", "b", "E1"):
+        assert st.params[k] == pytest.approx(ref.params[k], rel=1e-9, abs=1e-12)
+    on_shifted = loop.joint_fit(shifted, obs, {k: float(tc["final"].params[k]) for k in theta},
+                                added)
+    assert abs(on_shifted.params["E1"] - st.params["E1"]) > 1e-6     # a different start
+    assert loop.refit_start(m, shifted, obs, theta, {}) is None
+    assert loop.refit_start(m, m, obs, theta, added) is None
