@@ -502,12 +502,24 @@ def _off_anchor_twin(m):
     return twin
 
 
+def _calibrated_and_corrected(m, obs, twin, max_refits):
+    """The toy model calibrated on ``obs`` and its twin-corrected refits without effects
+    against ``twin``: (calibrated theta, calibrated fit, refits dict)."""
+    from analysis.diagnose import calibrate_base
+    _, cal = calibrate_base(m.predict, obs, m.base_params(), model_se=m.model_se())
+    theta = {k: float(cal.params[k]) for k in ("a", "b")}
+    tc = loop.twin_corrected_refits(
+        m, obs, theta, {}, cal,
+        lambda th, eff: (twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()),
+        max_refits=max_refits, log=lambda s: None)
+    return theta, cal, tc
+
+
 def test_diagnosis_on_the_twin_corrected_model_drops_a_false_alarm():
     """No effect hidden, but the 'twin' differs from the model away from its anchor in a way
     that looks like E1 (a curvature in frequency growing with a): the model alone names E1;
     the same diagnosis on the model shifted onto a rerun at the calibrated point (what the
     loop does before it diagnoses) names nothing, and its calibrated a is the truth."""
-    from analysis.diagnose import calibrate_base
     m = ToyModel(se=0.002)
     twin = _off_anchor_twin(m)
 
@@ -518,12 +530,7 @@ def test_diagnosis_on_the_twin_corrected_model_drops_a_false_alarm():
                         "value": mu + 0.01 * rng.standard_normal(len(mu)), "sd": 0.01})
     raw = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None)
     assert "E1" in raw["added"]                                   # the model alone: false alarm
-    _, cal = calibrate_base(m.predict, obs, m.base_params(), model_se=m.model_se())
-    theta = {k: float(cal.params[k]) for k in ("a", "b")}
-    tc = loop.twin_corrected_refits(
-        m, obs, theta, {}, cal,
-        lambda th, eff: (twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()),
-        max_refits=3, log=lambda s: None)
+    theta, cal, tc = _calibrated_and_corrected(m, obs, twin, 3)
     assert tc["corrected"] is not None
     fin = tc["final"]
     assert abs(fin.params["a"] - 2.2) <= 3 * fin.stderr["a"]
@@ -690,18 +697,12 @@ def test_final_refits_start_from_the_models_own_joint_fit():
     the model itself from its calibrated point (not from the corrected model's, which was
     refitted without the effect): refit_start returns that fit, and nothing where no effect
     was added or the diagnosis ran on the model."""
-    from analysis.diagnose import calibrate_base
     m = ToyModel(se=0.002)
     twin = _off_anchor_twin(m)
     mu = twin({"a": 2.2, "b": 0.4}, {"E1": 0.3}).to_numpy()
     obs = pd.DataFrame({"condition_id": m.keys.get_level_values(0),
                         "observable": m.keys.get_level_values(1), "value": mu, "sd": 0.01})
-    _, cal = calibrate_base(m.predict, obs, m.base_params(), model_se=m.model_se())
-    theta = {k: float(cal.params[k]) for k in ("a", "b")}
-    tc = loop.twin_corrected_refits(
-        m, obs, theta, {}, cal,
-        lambda th, eff: (twin(th, eff), pd.Series(0.002, index=m.keys), pd.DataFrame()),
-        max_refits=1, log=lambda s: None)
+    theta, cal, tc = _calibrated_and_corrected(m, obs, twin, 1)
     shifted = loop._ShiftedModel(m, tc["corrected"])
     added = {"E1": 0.2}
     st = loop.refit_start(m, shifted, obs, theta, added)
