@@ -11,10 +11,11 @@ exists is not rerun: the suite resumes), then scores the verdicts against the tr
 * chi2/dof after the last add (the model's) and of the twin rerun.
 
 Writes ``summary.csv`` (one row per dataset), ``sigma_check.csv`` (per observable, the mean
-z^2 of the no-effect datasets' residuals: do the stated sigmas match the scatter?), ``open_suite.png`` (fitted strengths against the
-truth; chi2/dof per dataset) and ``README.md`` (the goal lines with their counts) into
-``--out``. ``--score-only`` scores the loops already in ``--out`` without running any; a ``NOTES.md``
-there (written by hand) is appended to the README.
+z^2 of the no-effect datasets' residuals: do the stated sigmas match the scatter?),
+``open_suite.png`` (fitted strengths against the truth; chi2/dof per dataset) and
+``README.md`` (the goal lines with their counts) into ``--out``. ``--score-only`` scores the
+loops already in ``--out`` without running any; a ``NOTES.md`` there (written by hand) is
+appended to the README.
 
 Example::
 
