@@ -19,7 +19,10 @@ agrees (steady state), and records ``record_s``. Protocol 'free': the jar runs a
 recording starts at once (tests of contact physics).
 
 Writes into a temporary folder beside --out and renames it when complete: meta.json,
-trajectory.csv, impacts.csv (see README.md, "Recording"). Exit code 2 on bad input, 3 when the ball
+trajectory.csv, impacts.csv (see README.md, "Recording"). An existing --out is replaced only when
+this project wrote it (``out_rule.py``: the mark file, or a recording of this scene); any other
+non-empty folder, the repository, a source folder or an input is refused with one line and exit
+code 2 before the simulation starts. Exit code 2 on bad input, 3 when the ball
 leaves the jar or the run exceeds its wall-time budget; nothing is left marked complete then.
 
 Pitfalls handled here (see README.md):
@@ -56,6 +59,7 @@ import numpy as np  # noqa: E402
 
 import twin_config  # noqa: E402
 from twin_config import ConfigError  # noqa: E402
+from out_rule import OutRefused, check_run_out, may_replace  # noqa: E402
 from twin_modes import classify_motion  # noqa: E402
 from geometry.stl_io import MeshError, ball_fit_error  # noqa: E402
 from geometry.jar import mesh_for_config  # noqa: E402
@@ -739,9 +743,20 @@ def write_outputs(twin, out_dir, wall_s, steps):
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    if os.path.exists(out_dir):
-        shutil.rmtree(out_dir)
-    os.rename(tmp, out_dir)
+    if os.path.lexists(out_dir):
+        # checked before the run (main); checked again here, as the folder may have changed
+        # meanwhile: the old folder is moved away first and removed only once the new one is in
+        if not (os.path.isdir(out_dir) and not os.path.islink(out_dir)
+                and may_replace(out_dir)):
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise OutRefused("--out %s was changed during the run and now holds files this "
+                             "project did not write; the recording is not written" % out_dir)
+        old = os.path.join(parent, ".old-%s-%d" % (os.path.basename(out_dir), os.getpid()))
+        os.rename(out_dir, old)
+        os.rename(tmp, out_dir)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out_dir)
     return meta
 
 
@@ -846,8 +861,14 @@ def main(argv=None):
         if not out:
             out = os.path.join(ROOT, "results", "runs", twin_config.run_id(cfg, ROOT))
         out = os.path.abspath(out)
+        # the output rule (out_rule.py), before any simulation: never replace what was not
+        # written by this project, nor an input of the run
+        inputs = [] if batch is not None else [a.config]
+        if not twin_config.parametric_jar(cfg):
+            inputs.append(twin_config.resolve_stl(cfg, ROOT))
+        out = check_run_out(out, ROOT, inputs)
         meta = run(cfg, out)
-    except (ConfigError, MeshError) as exc:
+    except (ConfigError, MeshError, OutRefused) as exc:
         sys.stderr.write("mill.py: error: %s\n" % exc)
         return 2
     except RunFailure as exc:
