@@ -10,6 +10,8 @@ wrote itself. It refuses, before anything is written,
   datasets), ``results/`` itself and the run cache ``results/runs/``;
 * any folder given as ``protected`` (e.g. the dataset being analysed), one inside it or one
   holding it;
+* a folder whose parent cannot be made or written (a file on the way, a read-only folder:
+  :func:`check_parent`);
 * an existing, non-empty folder that carries no mark (:data:`MARKER`) of an earlier output of
   this project and does not sit in ``results/``. A stage may name the files it writes
   (``own_names``, and say how it recognises its own earlier output, ``is_own``): then an
@@ -20,7 +22,7 @@ wrote itself. It refuses, before anything is written,
 A stage that writes one FILE (a movie, say) follows the same rule through
 :func:`check_out_file`: the same places are refused, and an existing file is replaced only when
 the stage recognises it as its own earlier output (the stage says how, e.g. from a sidecar it
-wrote beside the file holding the file's hash).
+wrote beside the file holding the file's hash, or from the table's header: :func:`own_csv`).
 
 :func:`output_dir` joins the two: ``with output_dir(out, protected) as tmp:`` writes into
 ``tmp`` and publishes it when the block ends, or removes it on an error.
@@ -57,6 +59,44 @@ def _only_own_files(folder: Path, own_names) -> bool:
     """``folder`` holds nothing but plain files named in ``own_names``."""
     names = set(own_names)
     return all(p.is_file() and not p.is_symlink() and p.name in names for p in folder.iterdir())
+
+
+def _writable(folder: Path) -> bool:
+    """This process may make entries in the existing folder ``folder``."""
+    return os.access(folder, os.W_OK | os.X_OK)
+
+
+def check_parent(out, flag="--out", shown=None):
+    """Raise :class:`OutputError` unless ``out``'s parent can be made and written: the nearest
+    existing ancestor must be a folder (not a file) this process may write in (not read-only).
+    Nothing is created."""
+    out = Path(out)
+    shown = out if shown is None else shown
+    anc = out.parent
+    while not (anc.exists() or anc.is_symlink()) and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise OutputError("%s %s: %s is a file, not a folder; give a path in a folder"
+                          % (flag, shown, anc))
+    if not _writable(anc):
+        raise OutputError("%s %s: cannot write in %s (read-only or not yours); give a "
+                          "writable place" % (flag, shown, anc))
+
+
+def own_csv(columns, prefix=False):
+    """An ``is_own`` test for :func:`check_out_file`: the existing file is a CSV whose header is
+    exactly ``columns`` (or, with ``prefix``, starts with them) - the table a stage writes, never
+    a track or summary it reads."""
+    want = list(columns)
+
+    def is_own(path) -> bool:
+        try:
+            with open(path, encoding="utf-8", errors="replace") as fh:
+                head = fh.readline().strip().split(",")
+        except OSError:
+            return False
+        return head[:len(want)] == want if prefix else head == want
+    return is_own
 
 
 def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names=None,
@@ -113,6 +153,7 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names
         if _within(out, p) or _within(p, out):
             raise OutputError("%s %s is, holds or lies inside an input (%s): outputs never "
                               "replace what was read" % (flag, out_dir, p))
+    check_parent(out, flag, out_dir)
     if out.exists():
         if not out.is_dir():
             raise OutputError("%s %s is a file, not a folder" % (flag, out_dir))
@@ -197,6 +238,7 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out"):
         if _within(out, p):
             raise OutputError("%s %s is or lies inside an input (%s): outputs never replace "
                               "what was read" % (flag, out_file, p))
+    check_parent(out, flag, out_file)
     if (out.exists() or out.is_symlink()) and not (is_own is not None and is_own(out)):
         raise OutputError("%s %s already exists and is not an earlier output of this command; "
                           "give a new file name" % (flag, out_file))

@@ -50,6 +50,8 @@ from scipy.signal import savgol_coeffs, savgol_filter
 
 #: names of the impact observables, in the order :func:`flight_observables` returns them
 FLIGHT_OBSERVABLES = ("e_app", "v_in_m_s", "impact_phase_rad", "jar_amplitude_m", "vy_rms_m_s")
+#: the per-impact table's columns (``--impacts``)
+IMPACT_TABLE_COLUMNS = ("t_s", "end", "v_in_m_s", "v_out_m_s", "e", "phase_rad")
 
 
 class FlightError(ValueError):
@@ -226,7 +228,7 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
         t0 = tc
         ph = (w * t0 + phi0 + (math.pi if end < 0 else 0.0)) % (2 * math.pi)
         rows.append((t0, end, v_in, v_out, v_out / v_in if v_in > 0 else np.nan, ph))
-    imp = pd.DataFrame(rows, columns=["t_s", "end", "v_in_m_s", "v_out_m_s", "e", "phase_rad"])
+    imp = pd.DataFrame(rows, columns=list(IMPACT_TABLE_COLUMNS))
     fast = imp["v_in_m_s"] > max(v_in_min_m_s, 0.3 * float(np.nanmedian(imp["v_in_m_s"]))
                                  if len(imp) else v_in_min_m_s)
     good = imp[fast & np.isfinite(imp["e"])]
@@ -342,10 +344,17 @@ def main(argv=None):
     ap.add_argument("source", help="a track CSV (t_s, x_m, y_m, jar_x_m) or a recording folder")
     ap.add_argument("--frequency-hz", type=float, help="jar frequency [Hz] (tracks; recordings "
                     "read it from meta.json)")
-    ap.add_argument("--impacts", help="write the per-impact table to this CSV")
+    ap.add_argument("--impacts", help="write the per-impact table to this CSV (an existing "
+                    "file is replaced only when this command wrote it, never the input)")
     a = ap.parse_args(argv)
     from pathlib import Path
+    from analysis.atomic_dir import atomic_file, check_out_file, own_csv
+    # the project's output rule, before any work: never the input, never an existing file this
+    # command did not write (its own earlier table is recognised by its header)
+    is_own = own_csv(IMPACT_TABLE_COLUMNS)
     try:
+        imp_out = (check_out_file(a.impacts, [a.source], is_own=is_own, flag="--impacts")
+                   if a.impacts else None)
         p = Path(a.source)
         if p.is_dir():
             res = recording_flights(p)
@@ -361,8 +370,14 @@ def main(argv=None):
         print("analysis.flights: error: %s" % exc, file=sys.stderr)
         return 2
     print(res.to_frame().to_string(index=False))
-    if a.impacts:
-        res.impacts.to_csv(a.impacts, index=False)
+    if imp_out is not None:
+        try:
+            check_out_file(a.impacts, [a.source], is_own=is_own, flag="--impacts")
+            with atomic_file(imp_out) as tmp:
+                res.impacts.to_csv(tmp, index=False)
+        except (ValueError, OSError) as exc:
+            print("analysis.flights: error: %s" % exc, file=sys.stderr)
+            return 2
     return 0
 
 

@@ -702,6 +702,21 @@ def operator_bias(recording, frame: str = "lab", fps: float | None = None,
 # --------------------------------------------------------------------------------------------
 # CLI
 # --------------------------------------------------------------------------------------------
+#: the first columns of the tables ``--out`` writes (the one-row summary, the operator-bias
+#: table): an existing file is replaced only when its header starts so
+SUMMARY_HEAD = ("v_mean_m_s", "v_mean_raw_m_s", "e_kin_j", "f_col_hz")
+BIAS_HEAD = ("quantity", "operator", "direct", "difference", "relative", "frame", "flag")
+
+
+def _check_out(out, inputs):
+    """``--out``'s path, after the project's output rule (``analysis.atomic_dir``): never an
+    input, never an existing file this command did not write (an OutputError otherwise)."""
+    from analysis.atomic_dir import check_out_file, own_csv
+    summary, bias = own_csv(SUMMARY_HEAD, prefix=True), own_csv(BIAS_HEAD)
+    return check_out_file(out, [p for p in inputs if p],
+                          is_own=lambda q: summary(q) or bias(q), flag="--out")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m analysis.observe",
@@ -722,12 +737,15 @@ def main(argv=None) -> int:
     p.add_argument("--noise-study", action="store_true",
                    help="moved: python -m analysis.synthvideo --noise-study (the synthetic films "
                    "belong to synthvideo, which reads this module)")
-    p.add_argument("--out", help="CSV for the one-row summary (or the operator-bias table)")
+    p.add_argument("--out", help="CSV for the one-row summary (or the operator-bias table); "
+                   "an existing file is replaced only when this command wrote it, never the "
+                   "input")
     a = p.parse_args(argv)
     try:
         if a.noise_study:
             p.error("the noise/blur study moved: python -m analysis.synthvideo --noise-study "
                     "[--out CSV]")
+        out = _check_out(a.out, [a.track, a.recording]) if a.out else None
         kw = dict(fps=a.fps, frame=a.frame, kink_correction=not a.plain)
         if a.frequency_hz is not None:
             kw["frequency_hz"] = a.frequency_hz
@@ -746,12 +764,11 @@ def main(argv=None) -> int:
         else:
             p.error("give a track CSV or --recording DIR")
             return 2
-        if a.out:
-            out = Path(a.out)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            tmp = out.with_name(f".tmp-{out.name}")
-            out_df.to_csv(tmp, index=False)
-            tmp.replace(out)
+        if out is not None:
+            from analysis.atomic_dir import atomic_file
+            _check_out(a.out, [a.track, a.recording])      # again: it may have appeared since
+            with atomic_file(out) as tmp:
+                out_df.to_csv(tmp, index=False)
     except (ObserveError, ValueError, OSError) as exc:
         print(f"analysis.observe: error: {exc}", file=sys.stderr)
         return 2
