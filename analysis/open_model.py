@@ -8,7 +8,8 @@ cached by run id, so a second build costs nothing and a killed build resumes:
 * **anchor**: the twin at the anchor parameters ``theta_ref`` (default the calibration's
   posterior mean), every effect off, ``replicates`` seeds per condition (default 3);
 * **base parameters** (restitution, stroke, static and rolling friction): the twin at
-  ``theta_ref`` +- ``BASE_STEPS`` on both sides, with the first ``diff_replicates`` of the
+  ``theta_ref`` +- ``BASE_STEPS`` on both sides (kept inside the run config's bounds: near a
+  bound the levels are clipped or both put on one side, :func:`response_levels`), with the first ``diff_replicates`` of the
   anchor's seeds (the frictions, whose response is weak beside the twin's chaos, with all
   ``replicates`` of them: :data:`NOISY_BASE`); the response is the quadratic through the three
   points, extended linearly beyond them. Every base parameter is fitted: the frictions with
@@ -75,6 +76,67 @@ EXTRAPOLATE_STEPS = 0.5
 RUN_WALL_S = 21.0
 #: the same in the jar frame (run config frame 'jar' / 'auto': measured 1.7-1.9x faster)
 RUN_WALL_S_JAR = 12.0
+
+
+#: a response level clipped onto a bound must stay this many steps from the anchor; one that
+#: would lie closer goes beyond the other level instead (both levels on one side)
+MIN_LEVEL_STEPS = 0.5
+#: an open bound (restitution's 0: the config needs C_R > 0) is kept this many steps inside
+OPEN_BOUND_STEPS = 0.01
+
+
+def _level_ok(p, v) -> bool:
+    """The run config accepts ``v`` for base parameter ``p`` (its bounds and its own checks,
+    e.g. restitution in (0, 1])."""
+    from yade_scripts.twin_config import ConfigError, complete_config
+    try:
+        complete_config({p: v})
+    except ConfigError:
+        return False
+    return True
+
+
+def response_levels(p, ref, step=None) -> tuple:
+    """The two response levels of base parameter ``p`` about the anchor value ``ref``.
+
+    ``ref -+ step`` (default :data:`BASE_STEPS`), rounded to 4 digits, kept inside the run
+    config's bounds (``yade_scripts/twin_config.py`` PARAMETERS; an open bound is kept
+    :data:`OPEN_BOUND_STEPS` steps inside): a level beyond a bound is clipped onto it, and one
+    that then lies closer than :data:`MIN_LEVEL_STEPS` steps to the anchor moves one step
+    beyond the other level (an anchor on a bound: levels at +1 and +2 steps). The response is
+    the quadratic through the three real points (:func:`_poly_response` takes them as they are,
+    asymmetric or on one side), so no config outside the bounds is ever built.
+
+    Raises ValueError when ``ref`` itself lies outside the bounds or the bounds leave no room
+    for two levels.
+    """
+    from yade_scripts.twin_config import PARAMETERS
+    step = float(BASE_STEPS[p] if step is None else step)
+    ref = float(ref)
+    lo_b, hi_b = PARAMETERS[p][1], PARAMETERS[p][2]
+    lo = lo_b if _level_ok(p, lo_b) else lo_b + OPEN_BOUND_STEPS * step
+    hi = hi_b if _level_ok(p, hi_b) else hi_b - OPEN_BOUND_STEPS * step
+    if not _level_ok(p, ref):
+        raise ValueError("the anchor's %s = %g lies outside the run config's bounds [%g, %g]"
+                         % (p, ref, lo_b, hi_b))
+    lo, hi = min(lo, ref), max(hi, ref)
+    gap = MIN_LEVEL_STEPS * step
+    down = max(ref - step, lo)
+    up = min(ref + step, hi)
+    down = down if ref - down >= gap else None
+    up = up if up - ref >= gap else None
+    if down is None and up is not None:
+        down, up = up, min(ref + 2.0 * step, hi)
+        if up - down < gap:
+            up = None
+    elif up is None and down is not None:
+        down, up = max(ref - 2.0 * step, lo), down
+        if up - down < gap:
+            down = None
+    if down is None or up is None:
+        raise ValueError("the run config's bounds [%g, %g] of %s leave no room for two response "
+                         "levels %g apart about %g" % (lo_b, hi_b, p, gap, ref))
+    return tuple(min(max(float("%.4g" % v), lo), hi) for v in (down, up))
 
 
 def run_wall_s(base_config=None) -> float:
@@ -245,8 +307,7 @@ class OpenTwinModel(TwinModel):
             for p in self.base_requested:
                 if p == "amplitude_m" and self._stated_amplitude(i):
                     continue
-                for v in (ref[p] - BASE_STEPS[p], ref[p] + BASE_STEPS[p]):
-                    v = float("%.4g" % v)
+                for v in response_levels(p, ref[p]):
                     for k in range(self.base_seeds(p)):
                         rows.append(("base", p, v, cid, self.seed0 + k, condition_configs(
                             ph, dict(ref, **{p: v}), self.seed0 + k, self.base_config)))
