@@ -47,11 +47,24 @@ Example::
 """
 from __future__ import annotations
 
+import os
+import signal
+import sys
+
+if __name__ == "__main__" and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+    # Ctrl-C while the imports below load (seconds): one line and exit 130, no traceback;
+    # main() hands Ctrl-C back to Python (KeyboardInterrupt, caught there) once they are in
+    def _interrupted_early(signum, frame):
+        sys.stderr.write("analysis.loop: interrupted before anything started; nothing "
+                         "written\n")
+        sys.stderr.flush()
+        os._exit(128 + signum)
+    signal.signal(signal.SIGINT, _interrupted_early)
+
 import argparse
 import dataclasses
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1016,8 +1029,95 @@ def _json(o):
 
 # --------------------------------------------------------------------------- CLI
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one error line (``analysis.loop: error: ...``) and exit code 2."""
+
+    def error(self, message):
+        print("analysis.loop: error: %s" % message, file=sys.stderr)
+        sys.exit(2)
+
+
+def check_options(a):
+    """Refuse (ValueError, one line) every option value the loop cannot run with, before the
+    dataset is read or anything planned - the dry run included."""
+    def at_least(flag, value, lo):
+        if value is not None and value < lo:
+            raise ValueError("%s must be >= %d, got %d" % (flag, lo, value))
+    for flag, value in (("--replicates", a.replicates), ("--diff-replicates", a.diff_replicates),
+                        ("--rerun-replicates", a.rerun_replicates), ("--workers", a.workers)):
+        at_least(flag, value, 1)
+    for flag, value in (("--budget-runs", a.budget_runs), ("--max-refits", a.max_refits),
+                        ("--null-draws", a.null_draws), ("--max-reanchor", a.max_reanchor),
+                        ("--max-effects", a.max_effects)):
+        at_least(flag, value, 0)
+    if not (math.isfinite(a.alpha) and 0.0 < a.alpha < 1.0):
+        raise ValueError("--alpha must lie in (0, 1), got %g" % a.alpha)
+    if a.record_s is not None and not (a.record_s > 0 and math.isfinite(a.record_s)):
+        raise ValueError("--record-s must be > 0 s, got %g" % a.record_s)
+    if a.v_rel_sd is not None and not (math.isfinite(a.v_rel_sd) and 0.0 < a.v_rel_sd < 0.5):
+        raise ValueError("--v-rel-sd must lie in (0, 0.5) (a fraction of v_mean), got %g"
+                         % a.v_rel_sd)
+    if a.scheduler is not None and a.backend != "dask":
+        raise ValueError("--scheduler %s needs --backend dask (got --backend %s)"
+                         % (a.scheduler, a.backend))
+    if a.fake and a.backend == "dask":
+        raise ValueError("--fake runs the analytic stand-in in this process: use --backend "
+                         "local or serial")
+
+
+def dof_limits(ds, max_effects, base=None):
+    """(calibration dof, max effects) of a loop on ``ds``, before anything is planned.
+
+    The calibration fits every base parameter the dataset does not state (and, with yields,
+    the powder line's slope and intercept) to the dataset's observations and the frictions'
+    prior pseudo-observations; each added effect costs one more degree of freedom. Raises
+    ValueError when the calibration would keep no degree of freedom (one condition with
+    v_mean and f_col only: chi2/dof undefined, nothing can be tested); otherwise the number
+    of effects is capped so that one degree of freedom stays. A dataset whose films are not
+    yet tracked may gain impact observables: then nothing is refused or capped here.
+    """
+    from analysis.open_model import DEFAULT_BASE, calibration_prior
+    from analysis.run_configs import stated_amplitude_m
+    if ds.video_files and any(c not in ds.tracks for c in ds.video_files):
+        return None, max_effects
+    obs, _, _ = dataset_observations(ds, True)
+    n_obs = int(np.isfinite(pd.to_numeric(obs["value"], errors="coerce")).sum())
+    phys = physics_table(ds.conditions)
+    names = list(base or DEFAULT_BASE)
+    if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
+        names = [n for n in names if n != "amplitude_m"]
+    try:
+        n_prior = len(set(calibration_prior()) & set(names))
+    except (OSError, ValueError, KeyError):
+        n_prior = 0
+    n_par = len(names) + (2 if yield_times_of(ds) else 0)
+    dof = n_obs + n_prior - n_par
+    if dof < 1:
+        raise ValueError(
+            "%s: %d observation(s) at %d condition(s) (+ %d prior pseudo-observation(s)) for "
+            "%d calibrated parameter(s) (%s) leave %d degrees of freedom: chi2/dof is "
+            "undefined and no effect can be tested; measure at more conditions (each adds "
+            "v_mean and f_col), add jar tracks, or state the stroke (amplitude_mm)"
+            % (ds.name, n_obs, len(phys), n_prior,
+               n_par, ", ".join(names + (["slope_pct_per_kj", "intercept_pct"]
+                                        if yield_times_of(ds) else [])), dof))
+    return dof, min(max_effects, dof - 1)
+
+
 def main(argv=None):
-    ap = argparse.ArgumentParser(
+    """The command (see the module doc); Ctrl-C at any moment: one line, exit 130."""
+    if signal.getsignal(signal.SIGINT) is globals().get("_interrupted_early"):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as exc:                # SIGINT / SIGTERM: one line, 130 / 143
+        from analysis.sweep import interrupted_exit
+        return interrupted_exit("analysis.loop", exc)
+
+
+def _main(argv=None):
+    ap = _Parser(
+        prog="python -m analysis.loop",
         description="The loop on a measurement dataset: build the twin model at its "
         "conditions, calibrate, diagnose which effect is missing, add it (repeatedly), rerun "
         "the twin, write one report folder.",
@@ -1081,26 +1181,27 @@ def main(argv=None):
                     help="use the FAKE analytic twin (tests and demonstrations only)")
     a = ap.parse_args(argv)
     try:
+        # every option and the output (its parent included) before the dataset is read or
+        # anything planned: a bad value never costs a build
+        check_options(a)
         check_out_dir(a.out, [a.dataset])
+        base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
+        extra = optional_effects(a.with_effect, base_config)
         ds = load_dataset(a.dataset)
         physics_table(ds.conditions)
         if a.v_rel_sd is not None:
             ds = with_assumed_v_sd(ds, a.v_rel_sd)
-        if a.replicates < 1 or a.diff_replicates < 1 or a.rerun_replicates < 1:
-            raise ValueError("--replicates, --diff-replicates and --rerun-replicates must be "
-                             ">= 1")
-        if not 0.0 < a.alpha < 1.0:
-            raise ValueError("--alpha must lie in (0, 1), got %g" % a.alpha)
-        if a.record_s is not None and not (a.record_s > 0 and math.isfinite(a.record_s)):
-            raise ValueError("--record-s must be > 0 s, got %g" % a.record_s)
+        _, max_effects = dof_limits(ds, a.max_effects)
+        if max_effects < a.max_effects:
+            print("analysis.loop: note: at most %d effect(s) added (--max-effects %d): each "
+                  "costs a degree of freedom and the dataset leaves %d beyond the calibration"
+                  % (max_effects, a.max_effects, max_effects + 1), file=sys.stderr)
         runner = None
         runs_dir = None
         if a.fake:
             from analysis.config import FAKE_RUNS_DIR
             from analysis.fake_twin import run_fake_twin
             runner, runs_dir = run_fake_twin, FAKE_RUNS_DIR
-        base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
-        extra = optional_effects(a.with_effect, base_config)
         if a.dry_run:
             m = OpenTwinModel(ds.conditions, yield_times_of(ds),
                               velocity_frame=ds.velocity_frame, replicates=a.replicates,
@@ -1116,17 +1217,11 @@ def main(argv=None):
                                             ps["cached"], ps["new"], ps["est_wall_s"] / 60,
                                             a.workers, run_wall_s(base_config)))
             return 0
-        if a.max_reanchor < 0:
-            raise ValueError("--max-reanchor must be >= 0, got %d" % a.max_reanchor)
-        if a.max_refits < 0:
-            raise ValueError("--max-refits must be >= 0, got %d" % a.max_refits)
-        if a.null_draws < 0:
-            raise ValueError("--null-draws must be >= 0, got %d" % a.null_draws)
         res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
                        null_draws=a.null_draws, max_reanchor=a.max_reanchor,
                        max_polish=a.max_refits,
                        rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
-                       alpha=a.alpha, max_effects=a.max_effects, budget_runs=a.budget_runs,
+                       alpha=a.alpha, max_effects=max_effects, budget_runs=a.budget_runs,
                        base_config=base_config, runner=runner, workers=a.workers,
                        backend=a.backend, scheduler=a.scheduler, runs_dir=runs_dir,
                        log=lambda s: print(s, file=sys.stderr), extra_effects=extra)
@@ -1137,9 +1232,6 @@ def main(argv=None):
     except (DatasetError, ConditionError, OutputError, ValueError, RuntimeError) as exc:
         print("analysis.loop: error: %s" % exc, file=sys.stderr)
         return 2
-    except KeyboardInterrupt as exc:                # SIGINT / SIGTERM: one line, 130 / 143
-        from analysis.sweep import interrupted_exit
-        return interrupted_exit("analysis.loop", exc)
     print(res.verdict)
     print("staircase: " + ", ".join("%s %.2f" % (r.stage, r.chi2_dof)
                                     for r in res.staircase.itertuples()))
