@@ -1,0 +1,511 @@
+"""One output rule for every writer, bounds wherever a run config is built, every loop option
+checked before planning (issue 27, deliverables 1, 2 and 4).
+
+The table: one row per bad or unusual input - the scene's ``--out`` (YADE, marker ``yade``),
+observe's ``--out``, flights' ``--impacts``, the loop's options, its ``--out`` and its dataset.
+Each row is refused with one clear error line and a non-zero exit (2), before any work, and
+no file outside the command's own output changes: the working folder (inputs, a user's
+thesis, the dataset) is hashed before and after, and so is the repository folder a row aims
+at. Then what is handled instead of refused: each writer replaces its own earlier output, a
+single condition or a small dataset is refused or capped with a reason, Ctrl-C at any moment
+is one line and exit 130, and no response config leaves the declared bounds - the loop with
+the FAKE twin, fed anchors on the bounds, never exits 2 once its twin runs started.
+"""
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis import atomic_dir
+from analysis import flights as flt
+from analysis import loop
+from analysis import observe as obs
+from analysis.config import PAPER_TABLE3_DIR, REPO_ROOT
+from analysis.parameter_space import BASE_STEPS, CALIBRATED
+from yade_scripts import out_rule
+from yade_scripts.twin_config import PARAMETERS, ConfigError, complete_config
+
+MILL = REPO_ROOT / "yade_scripts" / "mill.py"
+#: a free-flight run of a few milliseconds: the scene's own earlier output, made in seconds
+QUICK_RUN = {"protocol": "free", "record_s": 0.005, "ball_start": "given",
+             "ball_init_pos_m": [0.0, 0.0, 0.0], "ball_init_vel_m_s": [1.0, 0.0, 0.0]}
+
+
+def tree_hash(root: Path) -> str:
+    """Every path and file's bytes under ``root`` (``__pycache__`` left out)."""
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*")):
+        if "__pycache__" in p.parts:
+            continue
+        h.update(str(p.relative_to(root)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def track_frame():
+    """A track with the jar (t_s, x_m, y_m, jar_x_m) of the exact 1-D impact map, 0.2 s."""
+    from tests.test_flights import impact_map_track
+    tr, _ = impact_map_track(record_s=0.2)
+    return tr
+
+
+@pytest.fixture
+def work(tmp_path, monkeypatch, track_frame):
+    """The working folder (cwd): a track, a user's thesis folder, a plain file, a foreign CSV,
+    a copy of Table 3 and a one-condition dataset, a run config for the scene."""
+    w = tmp_path / "work"
+    w.mkdir()
+    track_frame.to_csv(w / "track.csv", index=False)
+    (w / "notes" / "sub").mkdir(parents=True)
+    (w / "notes" / "thesis.tex").write_text("precious")
+    (w / "notes" / "sub" / "data.csv").write_text("a,b\n1,2\n")
+    (w / "file.txt").write_text("a file")
+    (w / "foreign.csv").write_text("x,y\n1,2\n")
+    shutil.copytree(PAPER_TABLE3_DIR, w / "ds")
+    one = w / "one"
+    shutil.copytree(PAPER_TABLE3_DIR, one)
+    for name in ("conditions.csv", "summary.csv"):
+        lines = (PAPER_TABLE3_DIR / name).read_text().splitlines()
+        (one / name).write_text("\n".join(lines[:2]) + "\n")
+    (w / "cfg.json").write_text(json.dumps(QUICK_RUN))
+    (w / "in").mkdir()
+    (w / "in" / "cfg.json").write_text(json.dumps(QUICK_RUN))
+    (w / "ro").mkdir()
+    monkeypatch.chdir(w)
+    monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", tmp_path / "fake_runs")
+    return w
+
+
+def _read_only(w, monkeypatch):
+    """Make ``w/ro`` read-only (as root, whom the mode does not stop, the writability check
+    reads the mode bits instead)."""
+    os.chmod(w / "ro", 0o555)
+    if os.geteuid() == 0:
+        monkeypatch.setattr(atomic_dir, "_writable",
+                            lambda p: bool(os.stat(p).st_mode & 0o200))
+
+
+def _loop(*extra, ds="ds"):
+    return ("loop", lambda w: ["--dataset", str(w / ds), "--out", str(w / "lo"), *extra])
+
+
+def _loop_out(out, *extra):
+    return ("loop", lambda w: ["--dataset", str(w / "ds"), "--out", out(w), "--fake",
+                               "--workers", "1", *extra])
+
+
+def _observe(out):
+    return ("observe", lambda w: [str(w / "track.csv"), "--frequency-hz", "25", "--out",
+                                  out(w)])
+
+
+def _flights(out):
+    return ("flights", lambda w: [str(w / "track.csv"), "--frequency-hz", "25", "--impacts",
+                                  out(w)])
+
+
+def _mill(out, cfg=lambda w: w / "cfg.json"):
+    return ("mill", lambda w: ["--config", str(cfg(w)), "--out", out(w)])
+
+
+def _own_recording_plus_stranger(w):
+    """A folder holding a recording of the scene and a user's file beside it."""
+    d = w / "rec"
+    d.mkdir()
+    (d / "meta.json").write_text(json.dumps({k: 1 for k in out_rule.SCENE_META_KEYS}))
+    (d / "trajectory.csv").write_text("t_s\n")
+    (d / "thesis.tex").write_text("precious")
+    return str(d)
+
+
+yade = pytest.mark.yade
+#: (id, (command, argv(work)), words the error line holds, repository folder it aims at,
+#:  marks)
+ROWS = [
+    # --- the scene's --out (YADE): refused before any simulation
+    ("mill-out-unmarked-folder", _mill(lambda w: str(w / "notes")),
+     ["--out", "did not write", "new or empty folder"], None, [yade]),
+    ("mill-out-is-a-file", _mill(lambda w: str(w / "file.txt")), ["--out", "is a file"],
+     None, [yade]),
+    ("mill-out-is-cwd", _mill(lambda w: "."), ["--out", "current directory"], None, [yade]),
+    ("mill-out-holds-the-config", _mill(lambda w: str(w / "in"), lambda w: w / "in" / "cfg.json"),
+     ["--out", "input"], None, [yade]),
+    ("mill-out-is-a-source-folder", _mill(lambda w: str(REPO_ROOT / "yade_scripts")),
+     ["--out", "outside results/"], REPO_ROOT / "yade_scripts", [yade]),
+    ("mill-out-own-recording-plus-a-stranger", _mill(_own_recording_plus_stranger),
+     ["--out", "did not write"], None, [yade]),
+    # --- observe --out: never the input, never a file it did not write
+    ("observe-out-is-its-input-track", _observe(lambda w: str(w / "track.csv")),
+     ["--out", "input"], None, []),
+    ("observe-out-foreign-file", _observe(lambda w: str(w / "foreign.csv")),
+     ["--out", "already exists", "not an earlier output"], None, []),
+    ("observe-out-parent-is-a-file", _observe(lambda w: str(w / "file.txt" / "s.csv")),
+     ["--out", "is a file"], None, []),
+    ("observe-out-is-a-folder", _observe(lambda w: str(w / "notes")), ["--out", "folder"],
+     None, []),
+    ("observe-out-in-a-source-folder", _observe(lambda w: str(REPO_ROOT / "yade_scripts"
+                                                              / "s.csv")),
+     ["--out", "outside results/"], REPO_ROOT / "yade_scripts", []),
+    # --- flights --impacts: the same rule
+    ("flights-impacts-is-its-input-track", _flights(lambda w: str(w / "track.csv")),
+     ["--impacts", "input"], None, []),
+    ("flights-impacts-foreign-file", _flights(lambda w: str(w / "foreign.csv")),
+     ["--impacts", "already exists"], None, []),
+    ("flights-impacts-parent-is-a-file", _flights(lambda w: str(w / "file.txt" / "i.csv")),
+     ["--impacts", "is a file"], None, []),
+    ("flights-impacts-is-a-folder", _flights(lambda w: str(w / "notes")),
+     ["--impacts", "folder"], None, []),
+    ("flights-impacts-in-a-source-folder", _flights(lambda w: str(REPO_ROOT / "yade_scripts"
+                                                                  / "i.csv")),
+     ["--impacts", "outside results/"], REPO_ROOT / "yade_scripts", []),
+    # --- the loop's options, before planning (the dry run included)
+    ("loop-budget-runs-negative-dry-run", _loop("--dry-run", "--budget-runs", "-1"),
+     ["--budget-runs", ">= 0", "-1"], None, []),
+    ("loop-workers-zero-dry-run", _loop("--dry-run", "--workers", "0"),
+     ["--workers", ">= 1", "0"], None, []),
+    ("loop-max-effects-negative-dry-run", _loop("--dry-run", "--max-effects", "-1"),
+     ["--max-effects", ">= 0", "-1"], None, []),
+    ("loop-null-draws-negative-dry-run", _loop("--dry-run", "--null-draws", "-2"),
+     ["--null-draws", "-2"], None, []),
+    ("loop-max-reanchor-negative-dry-run", _loop("--dry-run", "--max-reanchor", "-1"),
+     ["--max-reanchor", "-1"], None, []),
+    ("loop-max-refits-negative-dry-run", _loop("--dry-run", "--max-refits", "-1"),
+     ["--max-refits", "-1"], None, []),
+    ("loop-replicates-zero", _loop("--fake", "--replicates", "0"), ["--replicates", ">= 1"],
+     None, []),
+    ("loop-diff-replicates-zero", _loop("--fake", "--diff-replicates", "0"),
+     ["--diff-replicates", ">= 1"], None, []),
+    ("loop-rerun-replicates-zero", _loop("--fake", "--rerun-replicates", "0"),
+     ["--rerun-replicates", ">= 1"], None, []),
+    ("loop-alpha-nan", _loop("--dry-run", "--alpha", "nan"), ["--alpha", "(0, 1)", "nan"],
+     None, []),
+    ("loop-alpha-one", _loop("--fake", "--alpha", "1"), ["--alpha", "(0, 1)"], None, []),
+    ("loop-record-s-zero", _loop("--dry-run", "--record-s", "0"), ["--record-s", "> 0"],
+     None, []),
+    ("loop-v-rel-sd-not-a-fraction", _loop("--dry-run", "--v-rel-sd", "1.5"),
+     ["--v-rel-sd", "(0, 0.5)"], None, []),
+    ("loop-scheduler-without-dask", _loop("--dry-run", "--scheduler", "tcp://h:8786"),
+     ["--scheduler", "--backend dask"], None, []),
+    ("loop-workers-not-an-integer", _loop("--dry-run", "--workers", "two"),
+     ["--workers", "invalid int value", "two"], None, []),
+    ("loop-unknown-option", _loop("--dry-run", "--bogus", "5"),
+     ["unrecognized arguments", "--bogus"], None, []),
+    ("loop-bad-set-dry-run", _loop("--dry-run", "--set", "restitution=0.3"),
+     ["--set restitution", "sets this itself"], None, []),
+    # --- the loop's --out: its parent too, before any work
+    ("loop-out-parent-is-a-file", _loop_out(lambda w: str(w / "file.txt" / "out")),
+     ["--out", "is a file"], None, []),
+    ("loop-out-parent-read-only", _loop_out(lambda w: str(w / "ro" / "sub" / "out")),
+     ["--out", "cannot write", "read-only"], None, []),
+    ("loop-out-unmarked-folder", _loop_out(lambda w: str(w / "notes")),
+     ["--out", "did not write"], None, []),
+    # --- the loop's dataset: a single condition leaves no degree of freedom
+    ("loop-single-condition", _loop("--fake", "--workers", "1", ds="one"),
+     ["1 condition", "0 degrees of freedom", "undefined", "more conditions"], None, []),
+    ("loop-single-condition-dry-run", _loop("--dry-run", ds="one"),
+     ["0 degrees of freedom"], None, []),
+]
+
+PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: error: ",
+          "loop": "analysis.loop: error: ", "mill": "mill.py: error: "}
+
+
+def _run(command, args):
+    """(exit code, stdout, the command's own error lines) - in-process for the analysis
+    commands, YADE as a subprocess for the scene."""
+    if command == "mill":
+        proc = subprocess.run(["yade", "-n", "-x", str(MILL), *args], cwd=os.getcwd(),
+                              capture_output=True, text=True, stdin=subprocess.DEVNULL,
+                              timeout=300)
+        own = [ln for ln in proc.stderr.splitlines() if ln.startswith("mill.py:")]
+        return proc.returncode, proc.stdout + proc.stderr, own
+    main = {"observe": obs.main, "flights": flt.main, "loop": loop.main}[command]
+    try:
+        rc = main(args)
+    except SystemExit as exc:              # argparse's own exit
+        rc = exc.code
+    return rc, None, None
+
+
+@pytest.mark.parametrize("command, argv, words, aims_at", [
+    pytest.param(*r[1], r[2], r[3], marks=r[4], id=r[0]) for r in ROWS])
+def test_refused_with_one_line_and_nothing_changed(command, argv, words, aims_at, work,
+                                                   monkeypatch, capsys):
+    if "read-only" in words:
+        _read_only(work, monkeypatch)
+    args = argv(work)
+    before = tree_hash(work)
+    repo_before = tree_hash(aims_at) if aims_at else None
+    t0 = time.time()
+    rc, text, own = _run(command, args)
+    out, err = capsys.readouterr()
+    if own is None:
+        own, text = err.strip().splitlines(), out + err
+    assert rc == 2, (rc, text)
+    assert len(own) == 1, text
+    assert own[0].startswith(PREFIX[command]), own[0]
+    for word in words:
+        assert word in own[0], (word, own[0])
+    assert "Traceback" not in text
+    assert tree_hash(work) == before
+    if aims_at:
+        assert tree_hash(aims_at) == repo_before
+    if command == "mill":                  # refused before any simulation: no scene built
+        assert time.time() - t0 < 60
+        assert not list(work.parent.glob("**/.tmp-*"))
+
+
+def test_table_has_a_row_per_case():
+    assert len({r[0] for r in ROWS}) == len(ROWS) >= 30
+    assert {r[1][0] for r in ROWS} == set(PREFIX)
+
+
+# -------------------------------------------------------------------------------- handled
+def test_scene_rule_without_yade(tmp_path, monkeypatch):
+    """out_rule (standard library) on its own: what the scene may replace and what not."""
+    monkeypatch.chdir(tmp_path)
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "meta.json").write_text(json.dumps({k: 1 for k in out_rule.SCENE_META_KEYS}))
+    (rec / "impacts.csv").write_text("event_id\n")
+    marked = tmp_path / "marked"
+    marked.mkdir()
+    (marked / out_rule.MARKER).write_text("")
+    (marked / "anything.txt").write_text("x")
+    (tmp_path / "empty").mkdir()
+    for ok in (rec, marked, tmp_path / "empty", tmp_path / "new",
+               REPO_ROOT / "results" / "runs" / "0123456789abcdef"):
+        assert out_rule.check_run_out(str(ok), str(REPO_ROOT)) == os.path.realpath(ok)
+    fake_meta = tmp_path / "fake"
+    fake_meta.mkdir()
+    (fake_meta / "meta.json").write_text('{"title": "my notes"}')
+    for bad in (fake_meta, REPO_ROOT, REPO_ROOT / "results", REPO_ROOT / "results" / "runs",
+                REPO_ROOT / "data" / "measurements", tmp_path):
+        with pytest.raises(out_rule.OutRefused):
+            out_rule.check_run_out(str(bad), str(REPO_ROOT))
+    with pytest.raises(out_rule.OutRefused, match="input"):
+        out_rule.check_run_out(str(tmp_path / "in"), str(REPO_ROOT),
+                               inputs=[str(tmp_path / "in" / "cfg.json")])
+
+
+@pytest.mark.yade
+def test_scene_replaces_only_its_own_output(work):
+    def mill(out):
+        return subprocess.run(["yade", "-n", "-x", str(MILL), "--config", "cfg.json",
+                               "--out", str(out)], capture_output=True, text=True,
+                              stdin=subprocess.DEVNULL, timeout=300)
+    out = work / "run"
+    assert mill(out).returncode == 0
+    first = json.loads((out / "meta.json").read_text())
+    assert out_rule.is_scene_recording(str(out))
+    again = mill(out)                                   # its own recording: replaced
+    assert again.returncode == 0, again.stderr
+    assert json.loads((out / "meta.json").read_text())["run_id"] == first["run_id"]
+    marked = work / "marked"
+    marked.mkdir()
+    (marked / out_rule.MARKER).write_text("")
+    (marked / "old.txt").write_text("an earlier output")
+    assert mill(marked).returncode == 0                 # a marked folder: replaced
+    assert sorted(p.name for p in marked.iterdir()) == ["impacts.csv", "meta.json",
+                                                        "trajectory.csv"]
+    assert not [p for p in work.iterdir() if p.name.startswith((".tmp-", ".old-"))]
+
+
+def test_observe_and_flights_replace_their_own_earlier_file(work, capsys):
+    track = (work / "track.csv").read_bytes()
+    for main, flag, name in ((obs.main, "--out", "summary.csv"),
+                             (flt.main, "--impacts", "impacts.csv")):
+        target = work / "results" / name
+        for _ in range(2):                              # new, then its own: replaced
+            assert main([str(work / "track.csv"), "--frequency-hz", "25", flag,
+                         str(target)]) == 0, capsys.readouterr().err
+        assert target.is_file()
+    assert (work / "track.csv").read_bytes() == track
+    assert list(pd.read_csv(work / "results" / "impacts.csv").columns) == list(
+        flt.IMPACT_TABLE_COLUMNS)
+    assert not [p for p in (work / "results").iterdir() if p.name.startswith(".")]
+
+
+def test_dof_refused_or_capped_before_planning(work):
+    from analysis.measurements import load_dataset
+    with pytest.raises(ValueError, match="0 degrees of freedom"):
+        loop.dof_limits(load_dataset(work / "one"), 3)
+    two = work / "two"
+    shutil.copytree(work / "ds", two)
+    for name in ("conditions.csv", "summary.csv"):
+        lines = (work / "ds" / name).read_text().splitlines()
+        (two / name).write_text("\n".join(lines[:3]) + "\n")
+    # 2 conditions: v and f_col each, 2 friction priors, 4 base parameters: 2 dof, 1 effect
+    assert loop.dof_limits(load_dataset(two), 3) == (2, 1)
+    dof, n = loop.dof_limits(load_dataset(work / "ds"), 3)
+    assert dof == 2 * 8 + 2 - 4 and n == 3
+
+
+def test_loop_dry_run_on_two_conditions_says_the_effects_are_capped(work, capsys):
+    two = work / "two"
+    shutil.copytree(work / "ds", two)
+    for name in ("conditions.csv", "summary.csv"):
+        lines = (work / "ds" / name).read_text().splitlines()
+        (two / name).write_text("\n".join(lines[:3]) + "\n")
+    assert loop.main(["--dataset", str(two), "--out", str(work / "lo"), "--dry-run",
+                      "--fake"]) == 0
+    err = capsys.readouterr().err
+    assert "at most 1 effect(s) added" in err and "Traceback" not in err
+
+
+def test_ctrl_c_during_the_imports_is_one_line_and_130(work):
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    p = subprocess.Popen([sys.executable, "-m", "analysis.loop", "--dataset",
+                          str(PAPER_TABLE3_DIR), "--out", str(work / "lo"), "--dry-run"],
+                         cwd=str(work), env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    time.sleep(1.0)                        # the interpreter is up; the imports take seconds
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    lines = err.strip().splitlines()
+    assert p.returncode == 130, (p.returncode, err)
+    assert len(lines) == 1 and lines[0].startswith("analysis.loop: interrupted"), err
+    assert not (work / "lo").exists()
+
+
+def test_ctrl_c_while_the_dataset_loads_is_one_line_and_130(work, monkeypatch, capsys):
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(loop, "load_dataset", interrupted)
+    assert loop.main(["--dataset", str(work / "ds"), "--out", str(work / "lo"),
+                      "--dry-run"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("analysis.loop: interrupted"), err
+
+
+def test_ctrl_c_while_parsing_is_one_line_and_130(work, monkeypatch, capsys):
+    def interrupted(self, *a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(loop._Parser, "parse_args", interrupted)
+    assert loop.main(["--dataset", "x", "--out", "y"]) == 130
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------- bounds
+def _bounds(p):
+    """Anchors on every bound of ``p``: the calibration's prior range and the run config's
+    physical bounds (an open one - restitution's 0 - just inside)."""
+    lo, hi = PARAMETERS[p][1], PARAMETERS[p][2]
+    out = list(CALIBRATED[p])
+    for b, inward in ((lo, 1), (hi, -1)):
+        try:
+            complete_config({p: b})
+            out.append(b)
+        except ConfigError:
+            out.append(b + inward * 1e-4)
+    return out
+
+
+def _valid(cfg) -> bool:
+    try:
+        complete_config(cfg)
+    except ConfigError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("p", sorted(BASE_STEPS))
+def test_response_levels_stay_inside_the_bounds(p):
+    from analysis.open_model import MIN_LEVEL_STEPS, response_levels
+    lo, hi = PARAMETERS[p][1], PARAMETERS[p][2]
+    step = BASE_STEPS[p]
+    for ref in _bounds(p) + [CALIBRATED[p][0] + 0.3 * step, 0.5 * sum(CALIBRATED[p])]:
+        levels = response_levels(p, ref)
+        assert len(set(levels)) == 2
+        for v in levels:
+            assert lo <= v <= hi and _valid({p: v}), (p, ref, levels)
+            assert abs(v - ref) >= MIN_LEVEL_STEPS * step * (1 - 1e-3), (p, ref, levels)
+    # far from the bounds: the symmetric anchor -+ one step, as before
+    mid = 0.5 * sum(CALIBRATED[p])
+    assert response_levels(p, mid) == tuple(float("%.4g" % (mid + s * step)) for s in (-1, 1))
+
+
+def test_the_plan_at_anchors_on_every_bound_builds_no_config_outside(tmp_path):
+    from analysis.open_model import OpenTwinModel
+    from analysis.fake_twin import run_fake_twin
+    conds = pd.DataFrame({"condition_id": ["a", "b"], "frequency_hz": [22.3, 28.0],
+                          "ball_diameter_mm": [19.0, 16.0]})
+    mid = {k: 0.5 * sum(v) for k, v in CALIBRATED.items()}
+    n = 0
+    for p in sorted(BASE_STEPS):
+        for b in _bounds(p):
+            m = OpenTwinModel(conds, {}, theta_ref=dict(mid, **{p: b}), runner=run_fake_twin,
+                              runs_dir=tmp_path, workers=1, progress=False, known_runs=None)
+            plan = m.plan("all")
+            bad = [c for c in plan["config"] if not _valid(c)]
+            assert not bad, (p, b, bad[:1])
+            base = plan[(plan["role"] == "base") & (plan["name"] == p)]
+            assert base["value"].nunique() == 2
+            n += len(plan)
+    assert n > 0
+
+
+def test_the_quadratic_takes_asymmetric_and_one_sided_points():
+    """The response through the real points: a quadratic is reproduced exactly whether the
+    levels sit symmetric, clipped on one side or both beyond the anchor."""
+    from analysis.open_model import _poly_response
+
+    def f(x):
+        return np.array([3.0 * x - 7.0 * x * x, -2.0 * x + 0.5 * x * x])
+    for xs in ([-0.15, 0.0, 0.15], [-0.1486, 0.0, 0.15], [0.0, 0.15, 0.30]):
+        xs = np.array(xs)
+        ds = np.vstack([f(x) for x in xs])
+        for dx in np.linspace(xs[0], xs[-1], 7):
+            assert np.allclose(_poly_response(xs, ds, dx), f(dx), atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def fake_dataset(tmp_path_factory):
+    """A FAKE-twin dataset at the issue's three conditions (22.3 Hz / 19 mm, 22.7 / 16,
+    22.1 / 22), no yields."""
+    from analysis.fake_twin import run_fake_twin
+    from analysis.hidden import make_hidden_dataset
+    d = tmp_path_factory.mktemp("fake_ds")
+    conds = pd.DataFrame({"condition_id": ["a", "b", "c"],
+                          "frequency_hz": [22.3, 22.7, 22.1],
+                          "ball_diameter_mm": [19.0, 16.0, 22.0]})
+    ds, _ = make_hidden_dataset(
+        "bounds", {}, conditions=conds, replicates=1, seed=3,
+        base_config={"restitution": 0.32, "static_friction": 0.55, "rolling_friction": 0.35,
+                     "amplitude_m": 0.0131},
+        runner=run_fake_twin, runs_dir=d / "runs", out_dir=d / "ds", truth_dir=d / "truth",
+        twin_v_rel_sd=0.015, twin_f_col_sd_hz=0.5, progress=False, v_rel_sd=0.005,
+        yield_times_min=())
+    return ds
+
+
+@pytest.mark.parametrize("corner", ["lower", "upper"])
+def test_loop_with_anchors_on_the_bounds_never_exits_2_after_its_runs(
+        corner, fake_dataset, tmp_path, monkeypatch, capsys):
+    """Fault injection: the loop's first anchor on every calibration bound at once (rolling
+    friction 0.1, below one step; restitution 0.1; static friction 0.3; stroke 10 mm - or
+    all at their upper bounds). Every twin run it makes is inside the run config's bounds and
+    it ends with a verdict (exit 0), never the bad-input code 2 after its runs started."""
+    runs = tmp_path / "fake_runs"
+    monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", runs)
+    anchor = {k: v[0 if corner == "lower" else 1] for k, v in CALIBRATED.items()}
+    monkeypatch.setattr(loop, "reference_parameters", lambda: dict(anchor))
+    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "out"), "--fake",
+                    "--workers", "1", "--null-draws", "0", "--rerun-replicates", "1",
+                    "--max-refits", "0"])
+    err = capsys.readouterr().err
+    assert rc == 0, err[-2000:]
+    configs = [json.loads(m.read_text())["config"] for m in runs.glob("*/meta.json")]
+    assert configs and all(_valid(c) for c in configs)
+    assert any(c["rolling_friction"] == anchor["rolling_friction"] for c in configs)
