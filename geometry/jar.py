@@ -19,11 +19,11 @@ import sys
 import numpy as np
 
 try:  # run as package module or as a plain script
-    from geometry.stl_io import (write_stl, signed_volume, check_jar_mesh, edge_defects,
-                                 read_stl, scale_for_units)
+    from geometry.stl_io import (write_stl, signed_volume, check_jar_mesh, check_jar_size,
+                                 edge_defects, read_stl, scale_for_units)
 except ImportError:  # pragma: no cover
-    from stl_io import (write_stl, signed_volume, check_jar_mesh, edge_defects, read_stl,
-                        scale_for_units)
+    from stl_io import (write_stl, signed_volume, check_jar_mesh, check_jar_size, edge_defects,
+                        read_stl, scale_for_units)
 
 DEFAULTS = {
     "inner_diameter_m": 0.028,
@@ -200,6 +200,7 @@ def mesh_for_config(cfg, stl_abs_path):
         return tri, info, 1.0
     tri = read_stl(stl_abs_path)
     scale = scale_for_units(tri, cfg["stl_units"])
+    check_jar_size(tri, scale, cfg["stl_units"])
     info = check_jar_mesh(tri, scale)
     info["source"] = stl_abs_path
     return tri * scale, info, scale

@@ -5,6 +5,7 @@ in opposite directions) and *oriented inward* (normals point into the cavity, so
 volume computed with the right-hand rule is negative). :func:`check_jar_mesh` tests both and
 returns the enclosed volume and the cavity's dimensions.
 """
+import math
 import os
 import struct
 
@@ -117,16 +118,48 @@ def edge_defects(triangles, decimals=9):
     return n_open, n_mis
 
 
+#: metres per unit of each STL unit ``stl_units`` may state
+STL_UNITS_M = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
+#: a mill jar's largest inner dimension lies in this range [m]; an STL read to a jar outside it
+#: is in another unit than the one it is read in (a jar of metres or of microns)
+JAR_SPAN_MIN_M = 0.005
+JAR_SPAN_MAX_M = 0.5
+
+
 def scale_for_units(triangles, units):
-    """Metres per file unit: 'm', 'mm', or 'auto' (mm when the mesh spans more than 1 unit)."""
-    if units == "m":
-        return 1.0
-    if units == "mm":
-        return 1e-3
+    """Metres per file unit: 'm', 'cm', 'mm', 'um', or 'auto' (mm when the mesh spans more than
+    1 unit, else m)."""
+    if units in STL_UNITS_M:
+        return STL_UNITS_M[units]
     if units == "auto":
         span = float(np.ptp(np.asarray(triangles).reshape(-1, 3), axis=0).max())
         return 1e-3 if span > 1.0 else 1.0
-    raise MeshError("stl units must be 'm', 'mm' or 'auto', got %r" % (units,))
+    raise MeshError("stl units must be 'm', 'cm', 'mm', 'um' or 'auto', got %r" % (units,))
+
+
+def check_jar_size(triangles, scale, units="auto"):
+    """Refuse a mesh that, read at ``scale`` metres per file unit, is no mill jar in size.
+
+    The largest extent of the bounding box must lie in JAR_SPAN_MIN_M - JAR_SPAN_MAX_M (5 mm -
+    0.5 m), whatever ``units`` (the ``stl_units`` the mesh was read in: 'auto' guesses, a unit
+    states). Raises MeshError naming the size, the units and the units the numbers fit.
+    """
+    span_units = float(np.ptp(np.asarray(triangles, float).reshape(-1, 3), axis=0).max())
+    span = span_units * scale
+    if JAR_SPAN_MIN_M <= span <= JAR_SPAN_MAX_M:
+        return
+    fits = [u for u, f in STL_UNITS_M.items() if JAR_SPAN_MIN_M <= span_units * f <= JAR_SPAN_MAX_M]
+    # likeliest first: the size nearest the middle of the range (in log)
+    mid = math.sqrt(JAR_SPAN_MIN_M * JAR_SPAN_MAX_M)
+    fits.sort(key=lambda u: abs(math.log(span_units * STL_UNITS_M[u] / mid)))
+    how = ("stl_units 'auto' reads a mesh spanning %g units as %s" % (
+        span_units, "mm" if scale == 1e-3 else "m") if units == "auto"
+        else "stl_units %r" % units)
+    hint = ("the numbers fit a jar in %s (%.3g mm across): set stl_units to %r"
+            % (" or ".join(fits), span_units * STL_UNITS_M[fits[0]] * 1e3, fits[0]) if fits
+            else "no unit (m, cm, mm, um) makes it one")
+    raise MeshError("the jar is %.3g m across (%s), not the %g mm - %g m of a mill jar: %s"
+                    % (span, how, JAR_SPAN_MIN_M * 1e3, JAR_SPAN_MAX_M, hint))
 
 
 def check_jar_mesh(triangles, scale=1.0):
@@ -188,7 +221,7 @@ def measure_jar(path, units="auto"):
     Parameters
     ----------
     path : str - STL file
-    units : str - 'm', 'mm' or 'auto' (see :func:`scale_for_units`)
+    units : str - 'm', 'cm', 'mm', 'um' or 'auto' (see :func:`scale_for_units`)
 
     Returns
     -------
@@ -198,10 +231,12 @@ def measure_jar(path, units="auto"):
     Raises
     ------
     MeshError
-        the file cannot be read or is not a closed, inward-oriented, axis-centred cavity.
+        the file cannot be read or is not a closed, inward-oriented, axis-centred cavity, or
+        not a jar's size in these units (:func:`check_jar_size`).
     """
     tri = read_stl(path)
     scale = scale_for_units(tri, units)
+    check_jar_size(tri, scale, units)
     return tri, check_jar_mesh(tri, scale), scale
 
 

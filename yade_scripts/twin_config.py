@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import re
 
 #: Seed paper's camera frame rate (Chronos 1.4, 2134 frames/s).
 CAMERA_FPS = 2134.0
@@ -100,7 +101,9 @@ PARAMETERS = {
                             "and its flat ends; must stay below D/2 - 1 mm (a flat pole disc "
                             "remains); close to D/2 the ends are domed (hemispherical)"),
     "stl_units": ("auto", None, None, "-", "apparatus",
-                  "'m', 'mm' or 'auto' (mm when the mesh is larger than 1 unit)"),
+                  "'m', 'cm', 'mm', 'um' or 'auto' (mm when the mesh is larger than 1 unit); a "
+                  "jar read to less than 5 mm or more than 0.5 m across is refused "
+                  "(geometry/stl_io.py, check_jar_size)"),
     "facet_contact": ("flat", None, None, "-", "numerical",
                       "'flat': Hertz radius of a ball on a facet is the ball radius (a flat "
                       "wall), YADE's Ig2_Facet_Sphere_ScGeom(hertzian=True); 'yade_default': "
@@ -133,7 +136,7 @@ PARAMETRIC_POLE_DISC_M = 1e-3
 CHOICES = {
     "ball_start": ("random", "center", "given"),
     "protocol": ("mill", "free"),
-    "stl_units": ("auto", "m", "mm"),
+    "stl_units": ("auto", "m", "cm", "mm", "um"),
     "facet_contact": ("flat", "yade_default"),
     "frame": ("lab", "jar", "auto"),
     "rolling_model": ("spring", "constant_torque"),
@@ -281,13 +284,50 @@ def run_id(cfg, root=None):
     return h.hexdigest()[:16]
 
 
+class DuplicateKeyError(ValueError):
+    """A JSON object holds one key twice (json would keep the last silently)."""
+
+
+def strict_json_loads(text):
+    """``json.loads`` of ``text`` (a leading UTF-8 byte-order mark ignored), refusing a key that
+    appears twice in one object.
+
+    The one JSON reader of every input file (run configs, dataset.json, video.json, film
+    sidecars): the standard library keeps the last of two equal keys without a word.
+
+    Raises
+    ------
+    DuplicateKeyError - the key repeated; its message names the key and the lines it is on
+    ValueError (json.JSONDecodeError) - malformed JSON
+    """
+    if text.startswith("\ufeff"):
+        text = text[1:]
+
+    def pairs(items):
+        out = {}
+        for key, value in items:
+            if key in out:
+                pat = re.compile(r'"%s"\s*:' % re.escape(json.dumps(key)[1:-1]))
+                lines = [text.count("\n", 0, m.start()) + 1 for m in pat.finditer(text)]
+                where = (" (lines %s)" % ", ".join(str(n) for n in lines)) if lines else ""
+                raise DuplicateKeyError("key %r appears twice in one object%s; each key may "
+                                        "appear once (JSON readers would keep the last "
+                                        "silently)" % (key, where))
+            out[key] = value
+        return out
+
+    return json.loads(text, object_pairs_hook=pairs)
+
+
 def load_config(path):
     """Read a JSON run config and complete it. Raises ConfigError naming the file."""
     try:
-        with open(path) as fh:
-            user = json.load(fh)
+        with open(path, encoding="utf-8") as fh:
+            user = strict_json_loads(fh.read())
     except OSError as exc:
         raise ConfigError("cannot read run config %s: %s" % (path, exc))
+    except DuplicateKeyError as exc:
+        raise ConfigError("run config %s: %s" % (path, exc))
     except ValueError as exc:
         raise ConfigError("run config %s is not valid JSON: %s" % (path, exc))
     try:

@@ -83,9 +83,12 @@ def read_sidecar(path: Path):
         side = path.with_name("video.json")
     if not side.is_file():
         return None, {}
-    try:
-        meta = json.loads(side.read_text())
-    except json.JSONDecodeError as exc:
+    from analysis.config import twin_config
+    try:     # the one strict reader: a key written twice is refused, a byte-order mark ignored
+        meta = twin_config.strict_json_loads(side.read_text(encoding="utf-8"))
+    except twin_config.DuplicateKeyError as exc:
+        raise TrackingError(f"{side}: {exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise TrackingError(f"{side}: not valid JSON ({exc})") from None
     if not isinstance(meta, dict):
         raise TrackingError(f"{side}: not a JSON object")
