@@ -36,6 +36,11 @@ record). Physics this reads: velocity-dependent restitution and a powder layer c
 its trend with v_in; jar compliance changes the jar's amplitude and the impact phase; the swing
 arm's vertical motion and tilt feed vertical velocity; restitution and stroke are pinned by e_app
 and jar_amplitude_m directly instead of through v_mean alone.
+
+Gaps (frames where the ball or the jar was not found: NaN in x_m, y_m or jar_x_m, the empty
+cells of a dataset track, docs/dataset_format.md) are allowed up to the dataset's limit
+(:data:`MAX_GAP_FRACTION`): the jar is fitted on its found frames, an impact whose fit windows
+touch a gap is left out, the vertical velocity is taken over the gap-free runs.
 """
 from __future__ import annotations
 
@@ -52,6 +57,8 @@ from scipy.signal import savgol_coeffs, savgol_filter
 FLIGHT_OBSERVABLES = ("e_app", "v_in_m_s", "impact_phase_rad", "jar_amplitude_m", "vy_rms_m_s")
 #: the per-impact table's columns (``--impacts``)
 IMPACT_TABLE_COLUMNS = ("t_s", "end", "v_in_m_s", "v_out_m_s", "e", "phase_rad")
+#: most frames that may be gaps: the dataset contract's limit (analysis.measurements)
+from analysis.measurements import TRACK_MAX_GAP_FRACTION as MAX_GAP_FRACTION  # noqa: E402
 
 
 class FlightError(ValueError):
@@ -96,6 +103,9 @@ def _noise_sd(y):
     """White tracking noise sd from third differences (a smooth motion's third differences are
     ~0; white noise's have variance 20 sigma^2), robustly (MAD) so impacts do not count."""
     d3 = np.diff(y, 3)
+    d3 = d3[np.isfinite(d3)]              # gaps (NaN frames) left out
+    if not len(d3):
+        return 0.0
     return 1.4826 * float(np.median(np.abs(d3 - np.median(d3)))) / math.sqrt(20.0)
 
 
@@ -179,11 +189,17 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     n = len(t)
     if not (len(x) == len(y) == len(jx) == n):
         raise FlightError(f"{source}: t_s, x_m, y_m, jar_x_m differ in length")
-    for name, a in (("t_s", t), ("x_m", x), ("y_m", y), ("jar_x_m", jx)):
-        if not np.all(np.isfinite(a)):
-            raise FlightError(f"{source}: column {name} has NaN at row "
-                              f"{int(np.flatnonzero(~np.isfinite(a))[0])} (impact observables "
-                              "need a gap-free track)")
+    if not np.all(np.isfinite(t)):
+        raise FlightError(f"{source}: column t_s has NaN at row "
+                          f"{int(np.flatnonzero(~np.isfinite(t))[0])} (every frame needs its time)")
+    # gaps: frames where the ball (x_m, y_m) or the jar (jar_x_m) was not found (NaN); an
+    # impact whose fit windows touch a gap is left out, the jar is fitted on its found frames
+    ok_j = np.isfinite(jx)
+    ok = np.isfinite(x) & np.isfinite(y) & ok_j
+    gap_fraction = 1.0 - float(ok.mean()) if n else 0.0
+    if gap_fraction > MAX_GAP_FRACTION:
+        raise FlightError(f"{source}: {100 * gap_fraction:.1f} % of the frames are gaps (NaN in "
+                          f"x_m, y_m or jar_x_m; limit {100 * MAX_GAP_FRACTION:.0f} %)")
     if not (frequency_hz is not None and np.isfinite(frequency_hz) and frequency_hz > 0):
         raise FlightError(f"{source}: frequency_hz must be > 0, got {frequency_hz}")
     if skip < 0 or n_fit < 3:
@@ -197,7 +213,7 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
 
     # jar fundamental
     A = np.column_stack([np.cos(w * t), np.sin(w * t), np.ones(n)])
-    coef = np.linalg.lstsq(A, jx, rcond=None)[0]
+    coef = np.linalg.lstsq(A[ok_j], jx[ok_j], rcond=None)[0]
     ca, cb = float(coef[0]), float(coef[1])
     amp = math.hypot(ca, cb)
     if amp <= 0:
@@ -206,7 +222,7 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     phi0 = math.atan2(ca, cb)
 
     r = x - jx
-    q_lo, q_hi = np.quantile(r, [0.02, 0.98])
+    q_lo, q_hi = np.nanquantile(r, [0.02, 0.98])
     travel = q_hi - q_lo
     if not travel > 1e-3:
         raise FlightError(f"{source}: the ball moves {travel * 1e3:.3g} mm relative to the jar "
@@ -216,7 +232,7 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     for k, end, a, b in vis:
         bs = slice(k - skip - n_fit, k - skip)
         as_ = slice(k + skip + 1, k + skip + 1 + n_fit)
-        if bs.start < 0 or as_.stop > n:
+        if bs.start < 0 or as_.stop > n or not ok[bs.start:as_.stop].all():
             continue
         tc = _contact_time(t, x, jx, bs, as_, k, skip)
         u_b = _fit_at(t, x, bs, tc, 1)
@@ -249,15 +265,22 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     # reads 1.4 % low, at 60 Hz 2 %, on both sides alike); the tracking noise's
     # share of the mean square (noise sd from the track's third differences) is taken out, so
     # a clean twin track and a noisy measured one read the same motion
-    vy = savgol_filter(y, 7, 2, deriv=1, delta=float(np.median(dt)))
+    # (over each gap-free run of 7 frames or more; one run without gaps)
+    fin = np.isfinite(y)
+    edges = np.flatnonzero(np.diff(np.r_[0, fin.astype(int), 0]))
+    vy = np.concatenate([savgol_filter(y[a:b], 7, 2, deriv=1, delta=float(np.median(dt)))
+                         for a, b in zip(edges[::2], edges[1::2]) if b - a >= 7] or [np.zeros(0)])
+    if len(vy) < 8:
+        raise FlightError(f"{source}: fewer than 8 frames in gap-free runs of 7 or more")
     gain2 = float(np.sum(savgol_coeffs(7, 2, deriv=1, delta=float(np.median(dt))) ** 2))
     noise_var = _noise_sd(y) ** 2 * gain2
     blocks = np.array_split(vy, 8)
     vy_rms = math.sqrt(max(0.0, float(np.mean(vy ** 2)) - noise_var))
     blk = np.array([math.sqrt(max(0.0, float(np.mean(b ** 2)) - noise_var)) for b in blocks])
     # amplitude se from the fit residual
-    res = jx - A @ coef
-    amp_se = float(np.sqrt(np.sum(res ** 2) / max(1, n - 3)) * math.sqrt(2.0 / n))
+    res = jx[ok_j] - A[ok_j] @ coef
+    nj = int(ok_j.sum())
+    amp_se = float(np.sqrt(np.sum(res ** 2) / max(1, nj - 3)) * math.sqrt(2.0 / nj))
     values = {"e_app": float(np.median(e)), "v_in_m_s": float(np.median(vin)),
               "impact_phase_rad": phase, "jar_amplitude_m": float(amp),
               "vy_rms_m_s": vy_rms}

@@ -23,8 +23,14 @@ yields.csv                  condition_id, time_min, yield_pct                   
 Units sit in the column names. Unknown columns are kept and ignored. Any violation of the
 contract (missing required column, a column carrying the wrong unit such as ``v_mean_mm_s`` or
 ``frequency_rpm``, an empty or non-numeric or NaN cell in a required column, a negative
-frequency, a duplicate or unknown ``condition_id``, a yield outside [0, 100] %) raises ONE
-:class:`DatasetError` that names the file, the row and the column. yields.csv rows may come in
+frequency, a duplicate or unknown ``condition_id``, a yield outside [0, 100] %, a zero or
+negative sd, a value implausible for its unit - :data:`PLAUSIBLE` and the track bounds
+``TRACK_*`` / ``JAR_AMPLITUDE_*``, the likely unit slip named) raises ONE :class:`DatasetError`
+that names the file, the row and the column. A track's lost frame (a gap) is a row with its t_s
+and empty (or NaN) x_m and y_m. CSV and JSON files may start with a UTF-8 byte-order mark; a
+JSON key given twice is refused. A frequency outside the twin's tested range
+(``FREQUENCY_TESTED_MIN_HZ`` - ``FREQUENCY_TESTED_MAX_HZ``) is accepted with a warning
+(:func:`input_warnings`). yields.csv rows may come in
 any order and a ``phase`` cell is kept as read; the yield-data tools (:mod:`analysis.yield_data`)
 are stricter (times non-decreasing within a condition, phase one of powder / wax / complete).
 
@@ -94,20 +100,29 @@ _UNIT_TOKENS = {
 # 'id' (non-empty text), 'phase' (one of PHASES or no label; kept as read)
 _CONDITIONS_REQUIRED = {"condition_id": "id", "frequency_hz": "pos", "ball_diameter_mm": "pos"}
 _CONDITIONS_OPTIONAL = {"amplitude_mm": "pos", "n_balls": "posint", "fill_g": "nonneg"}
+# 'sd': > 0 (a standard deviation: negative is impossible, 0 claims an exact measurement)
 _SUMMARY_REQUIRED = {"condition_id": "id", "v_mean_m_s": "nonneg", "f_col_hz": "nonneg"}
-_SUMMARY_SD = {"v_mean_sd_m_s": "nonneg", "f_col_sd_hz": "nonneg"}  # required columns, empty cells ok
-_TRACK_REQUIRED = {"t_s": "any", "x_m": "any", "y_m": "any"}
+_SUMMARY_SD = {"v_mean_sd_m_s": "sd", "f_col_sd_hz": "sd"}  # required columns, empty cells ok
+# a track's positions may be empty (or NaN) on a frame the ball was not found: a gap; t_s may not
+_TRACK_REQUIRED = {"t_s": "any"}
+_TRACK_POSITIONS = {"x_m": "any", "y_m": "any"}
 #: optional: the jar's displacement along x in the same frames (a marker on the jar), which
 #: analysis.flights needs for the impact observables
 _TRACK_OPTIONAL = {"jar_x_m": "any"}
 _YIELDS_REQUIRED = {"condition_id": "id", "time_min": "nonneg", "yield_pct": "pct"}
-_YIELDS_OPTIONAL = {"yield_sd_pct": "nonneg", "phase": "phase"}
+_YIELDS_OPTIONAL = {"yield_sd_pct": "sd", "phase": "phase"}
 #: every column of the conditions.csv and yields.csv contracts (required, then optional)
 CONDITIONS_COLUMNS = tuple(_CONDITIONS_REQUIRED) + tuple(_CONDITIONS_OPTIONAL)
 YIELDS_COLUMNS = tuple(_YIELDS_REQUIRED) + tuple(_YIELDS_OPTIONAL)
 
 _RULE_TEXT = {"pos": "must be > 0", "nonneg": "must be >= 0", "posint": "must be a positive integer",
-              "pct": "is outside [0, 100] %", "any": "must be finite"}
+              "pct": "is outside [0, 100] %", "any": "must be finite",
+              "sd": "must be >= 0 (a standard deviation is never negative)"}
+#: the refusal of a zero sd (rule 'sd')
+_ZERO_SD_TEXT = ("sd 0 claims an exact measurement (infinite weight in chi2): give the measured "
+                 "sd, or leave the cell empty for the documented default")
+#: cells of a track's position columns that mark a lost frame (a gap), besides an empty cell
+_GAP_CELLS = {"nan", "NaN", "NAN"}
 
 
 class DatasetError(ValueError):
@@ -176,6 +191,12 @@ class Dataset:
         """True when dataset.json says ``"synthetic": true`` (generated data, not measured)."""
         return self.meta.get("synthetic", False) is True
 
+    @property
+    def warnings(self) -> list:
+        """Inputs accepted but outside what the twin is tested on, one line each
+        (:func:`input_warnings`: a frequency outside the tested range)."""
+        return input_warnings(self)
+
     def condition_label(self, condition_id) -> str:
         """Plain-words label, e.g. '20.6 mm ball at 22.5 Hz'."""
         row = self.conditions.set_index("condition_id").loc[condition_id]
@@ -242,7 +263,9 @@ def _parse_number(text, fname, row, col, rule, allow_empty):
     if not math.isfinite(val):
         raise DatasetError("%s: value is %s (a finite number is required)"
                            % (_where(fname, row, col), s))
-    bad = ((rule == "pos" and val <= 0) or (rule == "nonneg" and val < 0)
+    if rule == "sd" and val == 0:
+        raise DatasetError("%s: %s" % (_where(fname, row, col), _ZERO_SD_TEXT))
+    bad = ((rule == "pos" and val <= 0) or (rule in ("nonneg", "sd") and val < 0)
            or (rule == "pct" and not 0.0 <= val <= 100.0)
            or (rule == "posint" and (val < 1 or val != int(val))))
     if bad:
@@ -351,7 +374,8 @@ def read_table(path, fname=None):
     """
     fname = str(path) if fname is None else fname
     try:
-        with open(path, newline="") as fh:
+        # utf-8-sig: a byte-order mark (a spreadsheet's "CSV UTF-8") is not part of the header
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh, skipinitialspace=True))
     except FileNotFoundError:
         raise DatasetError("%s: file is missing" % fname) from None
@@ -370,14 +394,18 @@ def read_table(path, fname=None):
 
 def read_json(path, fname=None):
     """The object in a JSON file (dataset.json, videos/video.json); DatasetError naming ``fname``
-    (default ``path``) when the file is missing or malformed."""
+    (default ``path``) when the file is missing or malformed, or an object holds a key twice. A
+    UTF-8 byte-order mark is ignored."""
+    from analysis.config import twin_config
     fname = str(path) if fname is None else fname
     try:
-        with open(path) as fh:
-            return json.load(fh)
+        with open(path, encoding="utf-8") as fh:
+            return twin_config.strict_json_loads(fh.read())
     except FileNotFoundError:
         raise DatasetError("%s: file is missing" % fname) from None
-    except json.JSONDecodeError as exc:
+    except twin_config.DuplicateKeyError as exc:
+        raise DatasetError("%s: %s" % (fname, exc)) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatasetError("%s: malformed JSON (%s)" % (fname, exc)) from None
 
 
@@ -397,13 +425,62 @@ def _validate_meta(meta, fname="dataset.json"):
                            % (fname, meta["synthetic"]))
 
 
+def _gap_cells(df, col):
+    """Boolean array: the cells of ``col`` that mark a lost frame (empty, or NaN written out)."""
+    return np.array([("" if v is None else str(v).strip()) in _GAP_CELLS | {""}
+                     for v in df[col]], dtype=bool)
+
+
 def _validate_track(df, fname):
-    out = _validate_table(df, fname, _TRACK_REQUIRED, optional=_TRACK_OPTIONAL)
+    """A track table: t_s filled and strictly increasing at a uniform frame spacing; x_m, y_m
+    filled, or both empty (or NaN) on a lost frame (a gap); the numbers plausible in seconds and
+    metres (:func:`check_track_units`)."""
+    _check_columns(df, fname, list(_TRACK_REQUIRED) + list(_TRACK_POSITIONS))
+    gaps = {c: _gap_cells(df, c) for c in _TRACK_POSITIONS}
+    half = np.flatnonzero(gaps["x_m"] != gaps["y_m"])
+    if half.size:
+        i = int(half[0])
+        col, other = ("x_m", "y_m") if gaps["x_m"][i] else ("y_m", "x_m")
+        raise DatasetError("%s: empty while %s is not; a lost frame (a gap) leaves both x_m and "
+                           "y_m empty" % (_where(fname, i + 1, col), other))
+    filled = df.copy()
+    for c, g in gaps.items():               # validate the filled cells; gaps become NaN below
+        filled.loc[g, c] = "0"
+    jar_gap = _gap_cells(df, "jar_x_m") if "jar_x_m" in df.columns else None
+    if jar_gap is not None:
+        filled.loc[jar_gap, "jar_x_m"] = "0"
+    out = _validate_table(filled, fname, dict(_TRACK_REQUIRED, **_TRACK_POSITIONS),
+                          optional=_TRACK_OPTIONAL)
+    for c, g in gaps.items():
+        out[c] = np.where(g, np.nan, out[c].to_numpy(float))
+    if jar_gap is not None:
+        out["jar_x_m"] = np.where(jar_gap, np.nan, out["jar_x_m"].to_numpy(float))
     t = out["t_s"].to_numpy()
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if bad.size:
         raise DatasetError("%s: t_s must increase strictly (it does not after row %d)"
                            % (_where(fname, int(bad[0]) + 2, "t_s"), int(bad[0]) + 1))
+    n_pos = int((~gaps["x_m"]).sum())
+    if n_pos < TRACK_MIN_FRAMES:
+        raise DatasetError("%s: %d frames with a position; a track needs at least %d"
+                           % (fname, n_pos, TRACK_MIN_FRAMES))
+    frac = 1.0 - n_pos / len(out)
+    if frac > TRACK_MAX_GAP_FRACTION:
+        raise DatasetError("%s: %.1f %% of the frames are gaps (empty x_m, y_m; at most %g %%): "
+                           "the track cannot give v_mean or f_col"
+                           % (fname, 100 * frac, 100 * TRACK_MAX_GAP_FRACTION))
+    if len(t) >= 3:
+        dt = np.diff(t)
+        step = float(np.median(dt))
+        off = np.abs(dt / step - 1.0)
+        if off.max() > TRACK_SPACING_TOL:
+            i = int(np.argmax(off))
+            raise DatasetError("%s: frames not uniformly spaced (%g s after row %d, the median "
+                               "spacing is %g s): a missing frame is a row with its t_s and "
+                               "empty x_m, y_m (a gap), not a skipped row"
+                               % (_where(fname, i + 2, "t_s"), dt[i], i + 1, step))
+    check_track_units(t, out["x_m"], out["y_m"],
+                      out["jar_x_m"] if "jar_x_m" in out.columns else None, fname)
     return out
 
 
@@ -422,28 +499,165 @@ def _validate_video(meta, fname="videos/video.json"):
                 raise DatasetError("%s: %r must be a positive number, got %r" % (fname, key, v))
 
 
-#: largest plausible value of a column for its unit, with the likely mistake behind a larger one
-PLAUSIBLE_MAX = {
-    "frequency_hz": (60.0, "a mixer mill runs at 3-35 Hz; rpm or cycles per minute?"),
-    "ball_diameter_mm": (50.0, "a milling ball is a few mm to a few cm; um?"),
-    "amplitude_mm": (50.0, "a half stroke of a few mm to a few cm; um?"),
-    "v_mean_m_s": (20.0, "a ball in a mixer mill moves at a few m/s; mm/s or cm/s?"),
-    "v_mean_sd_m_s": (20.0, "mm/s or cm/s?"),
-    "f_col_hz": (1000.0, "collisions per second; per minute?"),
+# --------------------------------------------------------------------------- plausibility
+# Physical bounds on every input value, declared once (units in the names) and read by every
+# check: a value outside them is almost always a unit slip, refused with the likely slip named.
+
+def _twin_bound(key, which):
+    """Lower (1) or upper (2) bound of a run-config key (yade_scripts/twin_config.py)."""
+    from analysis.config import twin_config
+    return float(twin_config.PARAMETERS[key][which])
+
+
+#: the frequency range the twin is tested in [Hz]: a condition outside it is accepted with a
+#: warning (:func:`input_warnings`, printed by ``python -m analysis.measurements``)
+FREQUENCY_TESTED_MIN_HZ = 3.0
+FREQUENCY_TESTED_MAX_HZ = 35.0
+#: above this a frequency is refused: the twin's run-config bound (60 Hz)
+FREQUENCY_MAX_HZ = _twin_bound("frequency_hz", 2)
+#: a milling ball's diameter [mm]: the twin's run-config bounds on ball_diameter_m (1-50 mm)
+BALL_DIAMETER_MIN_MM = 1e3 * _twin_bound("ball_diameter_m", 1)
+BALL_DIAMETER_MAX_MM = 1e3 * _twin_bound("ball_diameter_m", 2)
+#: a mixer mill's half stroke [mm]: below 1 mm the jar barely moves (a value in metres?); the
+#: upper bound is the twin's run-config bound on amplitude_m (50 mm)
+AMPLITUDE_MIN_MM = 1.0
+AMPLITUDE_MAX_MM = 1e3 * _twin_bound("amplitude_m", 2)
+#: a ball in a mixer mill moves at about a metre per second [m/s]
+V_MEAN_MIN_M_S = 0.01
+V_MEAN_MAX_M_S = 20.0
+#: end-wall collisions per second [1/s]
+F_COL_MAX_HZ = 1000.0
+#: ball positions of a track span less than this [m] (a jar a few cm long plus twice its stroke)
+TRACK_EXTENT_MAX_M = 0.5
+#: a track's mean frame-to-frame speed [m/s] (the bound on v_mean)
+TRACK_SPEED_MAX_M_S = V_MEAN_MAX_M_S
+#: the half peak-to-peak of a track's jar_x_m [m]: the stated stroke's bounds
+JAR_AMPLITUDE_MIN_M = AMPLITUDE_MIN_MM / 1e3
+JAR_AMPLITUDE_MAX_M = AMPLITUDE_MAX_MM / 1e3
+#: a track's frame rate, 1 / median spacing of t_s [1/s] (a high-speed camera: 100-1e6)
+TRACK_FPS_MIN = 100.0
+TRACK_FPS_MAX = 1e6
+#: frames of a track must be this uniformly spaced (|dt fps - 1|), as the observation operator
+#: requires; a missing frame is a row with empty positions (a gap), not a skipped row
+TRACK_SPACING_TOL = 0.05
+#: at most this fraction of a track's frames may be gaps (the observation operator's limit)
+TRACK_MAX_GAP_FRACTION = 0.2
+#: fewest frames with a position a track must hold (the observation operator's minimum)
+TRACK_MIN_FRAMES = 8
+
+#: column -> (lowest plausible, highest plausible, hint below, hint above); ``None``: no bound.
+#: Hints are formatted with v (the value), x1000 (v * 1000) and d1000 (v / 1000).
+PLAUSIBLE = {
+    "frequency_hz": (None, FREQUENCY_MAX_HZ, None,
+                     "a mixer mill runs at 3-35 Hz; rpm or cycles per minute?"),
+    "ball_diameter_mm": (BALL_DIAMETER_MIN_MM, BALL_DIAMETER_MAX_MM,
+                         "metres in the mm column ({v:g} m = {x1000:g} mm)?",
+                         "a milling ball is a few mm to a few cm; um?"),
+    "amplitude_mm": (AMPLITUDE_MIN_MM, AMPLITUDE_MAX_MM,
+                     "metres in the mm column ({v:g} m = {x1000:g} mm)?",
+                     "a half stroke of a few mm to a few cm; um?"),
+    "v_mean_m_s": (V_MEAN_MIN_M_S, V_MEAN_MAX_M_S,
+                   "the ball moves with the jar at about 1 m/s; km/s, or a missing value "
+                   "written as 0?", "a ball in a mixer mill moves at a few m/s; mm/s or cm/s?"),
+    "v_mean_sd_m_s": (None, V_MEAN_MAX_M_S, None, "mm/s or cm/s?"),
+    "f_col_hz": (None, F_COL_MAX_HZ, None, "collisions per second; per minute?"),
+    "f_col_sd_hz": (None, F_COL_MAX_HZ, None, "collisions per second; per minute?"),
 }
+#: the upper bounds alone (kept for readers of the former table)
+PLAUSIBLE_MAX = {c: (b[1], b[3]) for c, b in PLAUSIBLE.items() if b[1] is not None}
+
+
+def _hint(text, v):
+    return text.format(v=v, x1000=v * 1e3, d1000=v / 1e3)
 
 
 def _check_plausible(df, fname):
     """One DatasetError naming file, row and column for a value implausible for its unit."""
-    for col, (top, hint) in PLAUSIBLE_MAX.items():
+    for col, (lo, hi, hint_lo, hint_hi) in PLAUSIBLE.items():
         if col not in df.columns:
             continue
         v = pd.to_numeric(df[col], errors="coerce").to_numpy(float)
-        bad = np.flatnonzero(np.isfinite(v) & (v > top))
-        if len(bad):
-            i = int(bad[0])
-            raise DatasetError("%s: %g is implausible for %s (more than %g): %s"
-                               % (_where(fname, i + 1, col), v[i], col, top, hint))
+        for bound, bad, word, hint in ((lo, lambda a, b: a < b, "less", hint_lo),
+                                       (hi, lambda a, b: a > b, "more", hint_hi)):
+            if bound is None:
+                continue
+            idx = np.flatnonzero(np.isfinite(v) & bad(v, bound))
+            if len(idx):
+                i = int(idx[0])
+                raise DatasetError("%s: %g is implausible for %s (%s than %g): %s"
+                                   % (_where(fname, i + 1, col), v[i], col, word, bound,
+                                      _hint(hint, v[i])))
+
+
+def input_warnings(dataset) -> list:
+    """Lines on inputs accepted but outside what the twin is tested on (frequencies outside
+    FREQUENCY_TESTED_MIN_HZ - FREQUENCY_TESTED_MAX_HZ); each names file, row and column."""
+    out = []
+    cond = dataset.conditions
+    where = "conditions.csv" if dataset.path is None else str(Path(dataset.path)
+                                                              / "conditions.csv")
+    for i, (cid, f) in enumerate(zip(cond["condition_id"], cond["frequency_hz"]), start=1):
+        if not FREQUENCY_TESTED_MIN_HZ <= float(f) <= FREQUENCY_TESTED_MAX_HZ:
+            out.append("%s: condition %r at %g Hz is outside the twin's tested range %g-%g Hz; "
+                       "its comparison is an extrapolation"
+                       % (_where(where, i, "frequency_hz"), cid, float(f),
+                          FREQUENCY_TESTED_MIN_HZ, FREQUENCY_TESTED_MAX_HZ))
+    return out
+
+
+def check_track_units(t_s, x_m, y_m, jar_x_m=None, fname="track"):
+    """Refuse a track whose numbers are implausible in seconds and metres (a unit slip).
+
+    Checks the frame rate (1 / median spacing of ``t_s``: TRACK_FPS_MIN - TRACK_FPS_MAX), the
+    span of the ball's positions (TRACK_EXTENT_MAX_M), its mean frame-to-frame speed
+    (TRACK_SPEED_MAX_M_S) and the jar's half peak-to-peak (JAR_AMPLITUDE_MIN_M -
+    JAR_AMPLITUDE_MAX_M). NaN positions are gaps and left out. Raises :class:`DatasetError`
+    naming ``fname``, the column and the likely slip.
+    """
+    t = np.asarray(t_s, float)
+    x = np.asarray(x_m, float)
+    y = np.asarray(y_m, float)
+    if len(t) >= 2:
+        dt = float(np.median(np.diff(t)))
+        fps = 1.0 / dt if dt > 0 else float("inf")
+        if fps < TRACK_FPS_MIN:
+            raise DatasetError("%s: frame rate %g frames/s (1 / median spacing of t_s) is below "
+                               "%g: t_s in ms? (a high-speed camera takes thousands per second)"
+                               % (_where(fname, None, "t_s"), fps, TRACK_FPS_MIN))
+        if fps > TRACK_FPS_MAX:
+            raise DatasetError("%s: frame rate %g frames/s (1 / median spacing of t_s) is above "
+                               "%g: t_s in us or frame numbers divided wrongly?"
+                               % (_where(fname, None, "t_s"), fps, TRACK_FPS_MAX))
+    for col, a in (("x_m", x), ("y_m", y)):
+        fin = a[np.isfinite(a)]
+        if len(fin) and np.ptp(fin) > TRACK_EXTENT_MAX_M:
+            raise DatasetError("%s: the ball's positions span %g m (more than %g m; a jar is a "
+                               "few cm long): in mm? (%g mm)"
+                               % (_where(fname, None, col), np.ptp(fin), TRACK_EXTENT_MAX_M,
+                                  np.ptp(fin)))
+    ok = np.isfinite(x) & np.isfinite(y)
+    both = ok[1:] & ok[:-1]
+    if both.any():
+        sp = np.hypot(np.diff(x), np.diff(y))[both] / np.diff(t)[both]
+        v = float(np.mean(sp))
+        if v > TRACK_SPEED_MAX_M_S:
+            raise DatasetError("%s: the ball's mean speed along the track is %g m/s (more than "
+                               "%g m/s): positions in mm or cm, or t_s in ms?"
+                               % (_where(fname, None, "x_m"), v, TRACK_SPEED_MAX_M_S))
+    if jar_x_m is not None:
+        jx = np.asarray(jar_x_m, float)
+        fin = jx[np.isfinite(jx)]
+        if len(fin):
+            amp = 0.5 * float(np.ptp(fin))
+            if amp > JAR_AMPLITUDE_MAX_M:
+                raise DatasetError("%s: the jar moves +-%g m (more than %g m, a half stroke of "
+                                   "a few mm to a few cm): jar_x in mm? (%g mm)"
+                                   % (_where(fname, None, "jar_x_m"), amp, JAR_AMPLITUDE_MAX_M,
+                                      amp))
+            if amp < JAR_AMPLITUDE_MIN_M:
+                raise DatasetError("%s: the jar moves +-%g m (less than %g m): jar_x in km, or "
+                                   "the marker lost?" % (_where(fname, None, "jar_x_m"), amp,
+                                                         JAR_AMPLITUDE_MIN_M))
 
 
 def validate_conditions_table(df, fname="conditions.csv") -> pd.DataFrame:
@@ -759,8 +973,10 @@ def main(argv=None):
     try:
         ds = load_dataset(args.dataset)
     except DatasetError as exc:
-        print("error: %s" % exc, file=sys.stderr)
+        print("analysis.measurements: error: %s" % exc, file=sys.stderr)
         return 2
+    for line in input_warnings(ds):
+        print("analysis.measurements: warning: %s" % line, file=sys.stderr)
     print("%s: %d conditions, %d summary rows, %d tracks, %d videos, yields: %s, frame: %s"
           % (ds.name, len(ds.conditions), len(ds.summary), len(ds.tracks), len(ds.video_files),
              "no" if ds.yields is None else "%d rows" % len(ds.yields), ds.velocity_frame))

@@ -498,22 +498,35 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
 # inputs: track files and twin recordings
 # --------------------------------------------------------------------------------------------
 def read_track(path) -> pd.DataFrame:
-    """Read a track CSV (t_s, x_m, y_m, optional quality / jar_x_m); clear errors on bad input."""
+    """Read a track CSV (t_s, x_m, y_m, optional quality / jar_x_m); clear errors on bad input.
+
+    A lost frame (a gap) is a row with its t_s and empty (or NaN) x_m and y_m, as in a dataset's
+    tracks/ (docs/dataset_format.md); numbers implausible in seconds and metres (a track in mm,
+    t_s in ms) are refused (:func:`analysis.measurements.check_track_units`)."""
     path = Path(path)
     if not path.is_file():
         raise ObserveError(f"{path}: no such track file")
+    from analysis.measurements import DatasetError, check_track_units
     try:
-        df = pd.read_csv(path)
+        # utf-8-sig: a byte-order mark (a spreadsheet's "CSV UTF-8") is not part of the header
+        df = pd.read_csv(path, encoding="utf-8-sig", skipinitialspace=True)
     except Exception as exc:  # pandas raises many kinds
         raise ObserveError(f"{path}: not a readable CSV ({exc})") from None
+    df.columns = [str(c).strip() for c in df.columns]
     missing = [c for c in TRACK_COLUMNS if c not in df.columns]
     if missing:
         raise ObserveError(f"{path}: missing column(s) {', '.join(missing)}")
-    for c in TRACK_COLUMNS:
+    cols = list(TRACK_COLUMNS) + (["jar_x_m"] if "jar_x_m" in df.columns else [])
+    for c in cols:
         if not pd.api.types.is_numeric_dtype(df[c]):
             bad = pd.to_numeric(df[c], errors="coerce").isna() & df[c].notna()
             row = int(np.flatnonzero(bad.to_numpy())[0]) if bad.any() else 0
             raise ObserveError(f"{path}: row {row}, column {c}: not a number")
+    try:      # the dataset check's plausibility bounds: a track in mm or ms is refused
+        check_track_units(df["t_s"], df["x_m"], df["y_m"],
+                          df["jar_x_m"] if "jar_x_m" in df.columns else None, str(path))
+    except DatasetError as exc:
+        raise ObserveError(str(exc)) from None
     return df
 
 

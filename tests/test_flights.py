@@ -132,6 +132,22 @@ def test_tracking_noise_and_vertical_motion():
     assert all(res.se[k] > 0 for k in FLIGHT_OBSERVABLES)
 
 
+def test_gaps_leave_the_observables_unchanged(exact):
+    """Lost frames (NaN ball or jar positions, a dataset track's empty cells) are gaps: the
+    impacts whose fit windows touch one are left out, the rest read as before."""
+    tr, _ = exact
+    clean = flight_observables(*_cols(tr), 25.0).values
+    gappy = tr.copy()
+    rows = np.random.default_rng(5).choice(len(tr), size=len(tr) // 50, replace=False)
+    gappy.loc[rows, ["x_m", "y_m"]] = np.nan
+    gappy.loc[rows[:5] + 1, "jar_x_m"] = np.nan
+    v = flight_observables(*_cols(gappy), 25.0).values
+    assert v["e_app"] == pytest.approx(clean["e_app"], abs=0.01)
+    assert v["v_in_m_s"] == pytest.approx(clean["v_in_m_s"], rel=0.01)
+    assert v["jar_amplitude_m"] == pytest.approx(clean["jar_amplitude_m"], rel=1e-6)
+    assert v["vy_rms_m_s"] == pytest.approx(clean["vy_rms_m_s"], rel=0.05)
+
+
 def _cols(tr):
     return tr["t_s"], tr["x_m"], tr["y_m"], tr["jar_x_m"]
 
@@ -139,9 +155,13 @@ def _cols(tr):
 def test_bad_tracks_give_one_clear_error(exact):
     tr, _ = exact
     bad = tr.copy()
-    bad.loc[10, "jar_x_m"] = np.nan
-    with pytest.raises(FlightError, match="jar_x_m has NaN at row 10"):
+    bad.loc[10, "t_s"] = np.nan
+    with pytest.raises(FlightError, match="t_s has NaN at row 10"):
         flight_observables(*_cols(bad), 25.0)
+    lost = tr.copy()
+    lost.loc[: int(0.3 * len(tr)), "x_m"] = np.nan                  # 30 % gaps: over the limit
+    with pytest.raises(FlightError, match=r"30\.\d % of the frames are gaps"):
+        flight_observables(*_cols(lost), 25.0)
     with pytest.raises(FlightError, match="frequency_hz must be > 0"):
         flight_observables(*_cols(tr), -25.0)
     with pytest.raises(FlightError, match="less than two jar cycles"):
