@@ -1029,6 +1029,18 @@ def _json(o):
 
 # --------------------------------------------------------------------------- CLI
 
+def rerun_runs(n_conditions, *, rerun=True, replicates=3, max_refits=MAX_POLISH):
+    """(runs, most runs) of the loop's twin reruns, fresh seeds each: ``replicates`` per
+    condition at the calibrated point (with refits) and at the final point; each
+    twin-corrected refit that moves the point adds one more rerun there (at most
+    ``max_refits`` per point)."""
+    if not rerun:
+        return 0, 0
+    per = int(n_conditions) * int(replicates)
+    points = 2 if max_refits > 0 else 1
+    return per * points, per * points * (1 + int(max_refits))
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with one error line (``analysis.loop: error: ...``) and exit code 2."""
 
@@ -1206,7 +1218,7 @@ def _main(argv=None):
             m = OpenTwinModel(ds.conditions, yield_times_of(ds),
                               velocity_frame=ds.velocity_frame, replicates=a.replicates,
                               diff_replicates=a.diff_replicates, base_config=base_config,
-                              workers=a.workers, runs_dir=runs_dir,
+                              runner=runner, workers=a.workers, runs_dir=runs_dir,
                               effect_names=([c.name for c in CANDIDATES if c.kind == "dem"]
                                             + extra) if extra else None)
             for stage in ("base", "all"):
@@ -1216,6 +1228,20 @@ def _main(argv=None):
                                             else "with the effect responses", ps["runs"],
                                             ps["cached"], ps["new"], ps["est_wall_s"] / 60,
                                             a.workers, run_wall_s(base_config)))
+            lo, hi = rerun_runs(len(ds.conditions), rerun=not a.no_rerun,
+                                replicates=a.rerun_replicates, max_refits=a.max_refits)
+            if lo:
+                print("twin reruns: %d runs (%d seed(s) at %d condition(s), at %s), up to %d "
+                      "when the twin-corrected refits move the point"
+                      % (lo, a.rerun_replicates, len(ds.conditions),
+                         "the calibrated and the final point" if a.max_refits > 0
+                         else "the final point", hi))
+            w = max(a.workers, 1)
+            print("total: %d runs, %d new (up to %d), about %.0f min on %d worker(s); each "
+                  "re-anchoring (at most %d) adds a build" % (
+                      ps["runs"] + lo, ps["new"] + lo, ps["new"] + hi,
+                      math.ceil((ps["new"] + lo) / w) * run_wall_s(base_config) / 60,
+                      a.workers, a.max_reanchor))
             return 0
         res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
                        null_draws=a.null_draws, max_reanchor=a.max_reanchor,

@@ -509,3 +509,20 @@ def test_loop_with_anchors_on_the_bounds_never_exits_2_after_its_runs(
     configs = [json.loads(m.read_text())["config"] for m in runs.glob("*/meta.json")]
     assert configs and all(_valid(c) for c in configs)
     assert any(c["rolling_friction"] == anchor["rolling_friction"] for c in configs)
+
+
+def test_dry_run_counts_the_runs_the_loop_then_makes(fake_dataset, tmp_path, monkeypatch,
+                                                     capsys):
+    """The dry run's total (the whole model's plan and the twin rerun) is the number of runs
+    the loop then makes on the FAKE twin (no re-anchoring, no refits: nothing left open)."""
+    runs = tmp_path / "fake_runs"
+    monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", runs)
+    opts = ["--dataset", str(fake_dataset), "--out", str(tmp_path / "out"), "--fake",
+            "--workers", "1", "--null-draws", "0", "--rerun-replicates", "1",
+            "--max-refits", "0", "--max-reanchor", "0"]
+    assert loop.main(opts + ["--dry-run"]) == 0
+    total = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("total: ")]
+    assert len(total) == 1
+    planned = int(total[0].split()[1])
+    assert loop.main(opts) == 0, capsys.readouterr().err[-2000:]
+    assert len(list(runs.glob("*/meta.json"))) == planned
