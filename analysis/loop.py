@@ -900,7 +900,8 @@ def _fmt_theta(t):
 
 def _diagnosis_table(steps, added, eff_se):
     """One row per candidate: added effects first (in the order added, with the final joint
-    strength), then the rest as ranked in the last step."""
+    strength), then the rest as ranked in the last step (identifiable first, then by chi2
+    gain, largest first: both columns are in the table)."""
     if not len(steps):
         return pd.DataFrame(columns=["effect", "kind", "rank", "significant", "strength",
                                      "strength_se", "delta_chi2", "p_bonferroni",
@@ -913,6 +914,11 @@ def _diagnosis_table(steps, added, eff_se):
                      "delta_chi2": r["delta_chi2"], "p_bonferroni": r["p_bonferroni"],
                      "identifiable": bool(r["identifiable"]), "step": int(r["step"])})
     last = steps[steps["step"] == steps["step"].max()]
+    # the rest in the order the page states and shows: identifiable ones first, each group by
+    # its chi2 gain, largest first (the diagnosis' own ranking)
+    last = last.assign(_id=last["identifiable"].astype(bool),
+                       _g=pd.to_numeric(last["delta_chi2"], errors="coerce").fillna(-np.inf))
+    last = last.sort_values(["_id", "_g"], ascending=[False, False], kind="stable")
     for _, r in last.iterrows():
         if r["effect"] in added:
             continue
@@ -927,7 +933,10 @@ def _diagnosis_table(steps, added, eff_se):
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                    confirm=None):
-    head = "calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof)
+    from analysis.report.loop_words import stated_stroke_words
+    head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
+            "calibrated chi2/dof untestable (dof %d: no more observations than fitted "
+            "parameters)" % cal.dof)
     parts = []
     if added:
         found = []
@@ -969,7 +978,16 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
     if demoted:
         parts.append(demoted[-1].verdict)
     if model.held:
-        parts.append("held at the anchor: " + ", ".join(model.held))
+        held = []
+        stroke = stated_stroke_words(getattr(dataset, "conditions", None))
+        for k, reason in model.held.items():
+            if k == "amplitude_m" and stroke:
+                held.append("the stroke as the dataset states it (amplitude_mm %s), not "
+                            "fitted" % stroke)
+            else:
+                held.append("%s held at the anchor %.4g (%s)"
+                            % (k, float(model.theta_ref.get(k, np.nan)), reason))
+        parts.append("; ".join(held))
     beyond = model.outside(final.params)
     if beyond:
         parts.append("the final point lies beyond the model's measured responses (%s; no "
@@ -991,16 +1009,65 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
 # --------------------------------------------------------------------------- output
 
 def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
-    """Write the loop's folder atomically (see the module docstring for the files)."""
+    """Write the loop's folder atomically (see the module docstring for the files).
+
+    What the files state beyond the result itself (:mod:`analysis.report.loop_words`): a run
+    made by the FAKE twin says so on its page, in both figures (titles, watermark, PNG text)
+    and in loop.json (``twin``, ``fake_twin``); parameters.csv gives a stroke the dataset
+    states as stated and a column ``constrained``; diagnosis.csv the chi2 gain each candidate
+    needed (``delta_chi2_needed``, the test as applied: Bonferroni x the bootstrap's scale, the
+    F-test, BIC); loop.json is strict JSON (NaN and infinities as null)."""
     from analysis.plotting.diagnose_plots import write_loop_figures
     from analysis.report import loop_page
+    from analysis.report.loop_words import (FAKE_WORDS, UNCONSTRAINED_RULE,
+                                            annotate_parameters, is_fake_run, json_clean,
+                                            needed_gains, quoted_stages, step_scale)
 
     out_dir = Path(out_dir)
+    fake = is_fake_run(res)
+    bounds, priors = {}, {}
+    try:
+        from analysis.open_model import calibration_prior
+        from analysis.parameter_space import CALIBRATED, effect_strengths
+        bounds = dict(CALIBRATED, **{k: v[:2] for k, v in effect_strengths().items()})
+        priors = calibration_prior()
+    except (OSError, KeyError, ValueError, ImportError):
+        pass                          # no prior known: the flat prior over the bounds
+    params = annotate_parameters(res.parameters, getattr(dataset, "conditions", None),
+                                 bounds=bounds, priors=priors)
+    diagnosis = res.diagnosis.copy()
+    significance = []
+    for k, d in enumerate(res.diagnoses, start=1):
+        c = step_scale(res.steps, k)
+        significance.append({"step": k, "nominal_delta_chi2": float(d.threshold_delta_chi2),
+                             "bootstrap_scale": c,
+                             "applied_delta_chi2": float(d.threshold_delta_chi2) * c,
+                             "n_candidates": int(len(d.table)), "alpha": float(d.alpha)})
+    if len(diagnosis):
+        need = []
+        for _, r in diagnosis.iterrows():
+            st = int(r["step"])
+            if 1 <= st <= len(res.diagnoses):
+                ng = needed_gains(res.diagnoses[st - 1], step_scale(res.steps, st))
+                need.append(float(ng.get(r["effect"], np.nan)))
+            else:
+                need.append(np.nan)
+        diagnosis["delta_chi2_needed"] = need
+    steps = res.steps.copy()
+    if len(steps) and "step" in steps.columns:
+        need = []
+        for _, r in steps.iterrows():
+            st = int(r["step"])
+            ng = (needed_gains(res.diagnoses[st - 1], step_scale(res.steps, st))
+                  if 1 <= st <= len(res.diagnoses) else {})
+            need.append(float(ng.get(r["effect"], np.nan)) if len(ng) else np.nan)
+        steps["delta_chi2_needed"] = need
+    quoted = quoted_stages(res.staircase) if len(res.staircase) else {}
     with output_dir(out_dir, protected) as tmp:
-        res.diagnosis.to_csv(tmp / "diagnosis.csv", index=False)
+        diagnosis.to_csv(tmp / "diagnosis.csv", index=False)
         res.staircase.to_csv(tmp / "staircase.csv", index=False)
-        res.steps.to_csv(tmp / "steps.csv", index=False)
-        res.parameters.to_csv(tmp / "parameters.csv", index=False)
+        steps.to_csv(tmp / "steps.csv", index=False)
+        params.to_csv(tmp / "parameters.csv", index=False)
         res.comparison.to_csv(tmp / "comparison.csv", index=False)
         res.model_runs.to_csv(tmp / "model_runs.csv", index=False)
         if res.rerun_runs is not None:
@@ -1011,16 +1078,32 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
                 tr.to_csv(tmp / "tracks" / ("%s.csv" % cid), index=False)
             pd.DataFrame(res.info["tracking"]).to_csv(tmp / "tracking.csv", index=False)
         info = dict(res.info, status=res.status, verdict=res.verdict,
-                    effects={k: {"strength": s, "se": se} for k, (s, se) in res.effects.items()})
-        (tmp / "loop.json").write_text(json.dumps(info, indent=1, default=_json))
+                    effects={k: {"strength": s, "se": se} for k, (s, se) in res.effects.items()},
+                    twin=FAKE_WORDS if fake else "the DEM twin (YADE)", fake_twin=fake,
+                    quoted_stages={role: str(res.staircase["stage"].iloc[i])
+                                   for role, i in quoted.items()},
+                    significance=significance,
+                    unconstrained=[str(n) for n, c in zip(params["name"], params["constrained"])
+                                   if not pd.isna(c) and not bool(c)],
+                    unconstrained_rule=UNCONSTRAINED_RULE)
+        (tmp / "loop.json").write_text(json.dumps(json_clean(info), indent=1, allow_nan=False,
+                                                  default=_json))
         write_loop_figures(res.staircase, res.diagnoses[0] if res.diagnoses else None, tmp,
-                           dataset)
-        (tmp / "report.md").write_text(loop_page(res, dataset))
+                           dataset, fake=fake, quoted=quoted,
+                           threshold_scale=step_scale(res.steps, 1))
+        (tmp / "report.md").write_text(loop_page(res, dataset, fake=fake, parameters=params,
+                                                 diagnosis=diagnosis, quoted=quoted,
+                                                 significance=significance))
     return out_dir
 
 
 def _json(o):
-    if isinstance(o, (np.floating, np.integer)):
+    """JSON form of what :func:`analysis.report.loop_words.json_clean` left (numpy scalars;
+    NaN and infinities as null, never the invalid tokens NaN / Infinity)."""
+    if isinstance(o, (np.floating, float)):
+        v = float(o)
+        return v if math.isfinite(v) else None
+    if isinstance(o, np.integer):
         return o.item()
     if isinstance(o, np.bool_):
         return bool(o)

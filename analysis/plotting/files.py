@@ -11,10 +11,10 @@ def pyplot():
     return plt
 
 
-def save_png(fig, path, dpi: int):
+def save_png(fig, path, dpi: int, metadata: dict | None = None):
     """Write ``fig`` to ``path`` as PNG at ``dpi`` [dots per inch] and close it; returns
-    ``path``."""
+    ``path``. ``metadata``: PNG text chunks (e.g. {"Title": ..., "Description": ...})."""
     import matplotlib.pyplot as plt
-    fig.savefig(path, dpi=dpi)
+    fig.savefig(path, dpi=dpi, metadata=metadata)
     plt.close(fig)
     return path

@@ -58,41 +58,127 @@ def _candidate_table_lines(table, cols):
 # --------------------------------------------------------------------------------------------
 # the loop, compare, diagnose
 # --------------------------------------------------------------------------------------------
-def loop_page(res, dataset) -> str:
-    """``report.md`` of :func:`analysis.loop.write_loop`: the verdict, conditions, films, the
-    staircase, parameters, candidates, bootstrap calibration and the model's run counts.
-    ``res`` is an :class:`analysis.loop.LoopResult`, ``dataset`` the dataset it ran on."""
+def _cell(x, fmt="%.4g"):
+    if isinstance(x, (bool, np.bool_)):
+        return str(bool(x))
+    if isinstance(x, (float, np.floating)):
+        return fmt % x if np.isfinite(x) else "-"
+    if x is None or (not isinstance(x, str) and pd.isna(x)):
+        return "-"
+    return str(x)
+
+
+def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quoted=None,
+              significance=None) -> str:
+    """``report.md`` of :func:`analysis.loop.write_loop`: the verdict and which staircase rows
+    it quotes, conditions, films, the staircase (each row named for what it is, the dof
+    explained), parameters (stated strokes as stated, the unconstrained ones said to be so),
+    candidates (in the order the page states, by columns it shows; the chi2 gain each needed),
+    the significance as applied at each step and the model's run counts. ``res`` is an
+    :class:`analysis.loop.LoopResult`, ``dataset`` the dataset it ran on; ``fake`` (default:
+    from the runs' motion mode) marks a FAKE-twin run; ``parameters``, ``diagnosis``,
+    ``quoted``, ``significance`` are what write_loop writes beside the page (default: derived
+    from ``res``)."""
+    from analysis.report.loop_words import (FAKE, FAKE_WORDS, UNCONSTRAINED_RULE,
+                                            annotate_parameters, dof_words, is_fake_run,
+                                            quoted_stages, quoted_words, stage_kind,
+                                            stage_words, step_scale)
     i = res.info
+    fake = is_fake_run(res) if fake is None else bool(fake)
     synth = " (SYNTHETIC)" if dataset.meta.get("synthetic") else ""
-    md = ["# The loop on %s%s" % (dataset.name, synth), "",
-          "**Verdict:** %s" % res.verdict, "",
-          "Velocity frame: %s. Conditions (matched by physics):" % i["velocity_frame"], ""]
+    md = ["# The loop on %s%s%s" % (dataset.name, synth, " [%s twin]" % FAKE if fake else ""),
+          ""]
+    if fake:
+        md += ["> **%s**" % FAKE_WORDS.replace("FAKE twin:", "FAKE TWIN:"), ""]
+    md += ["**Verdict%s:** %s" % (" (%s twin)" % FAKE if fake else "", res.verdict), ""]
+    stair = res.staircase.reset_index(drop=True)
+    quoted = quoted_stages(stair) if quoted is None and len(stair) else (quoted or {})
+    qw = quoted_words(stair) if len(stair) else ""
+    if qw:
+        md += [qw, ""]
+    md += ["Velocity frame: %s. Conditions (matched by physics):" % i["velocity_frame"], ""]
     md += ["- %s: %s" % (c["condition_id"], c["label"]) for c in i["conditions"]]
     if i.get("tracking"):
         md += ["", "## Films tracked (ball and jar; tracks in tracks/)", ""]
         md += frame_table_lines(pd.DataFrame(i["tracking"]),
                                 ["condition_id", "video", "n_frames", "n_lost", "n_reacquired",
                                  "m_per_px", "scale_source", "jar_n_lost"])
-    md += ["", "## Staircase (chi2/dof)", ""]
-    md += frame_table_lines(res.staircase, ["stage", "chi2", "dof", "chi2_dof", "p_value"])
+    md += ["", "## Staircase (chi2/dof)", "",
+           "Each row is the model (interpolated from the twin runs at its anchor), the model "
+           "shifted onto the real twin's reruns at that point, or the real twin itself (fresh "
+           "runs); rows in the loop's order.", ""]
+    qrows = {int(v): k for k, v in quoted.items()}
+    cols = ["", "stage", "what it is", "chi2", "dof", "fitted parameters", "chi2/dof",
+            "p_value"]
+    md += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for k, r in stair.iterrows():
+        md.append("| %s | %s | %s: %s | %s | %s | %s | %s | %s |"
+                  % ("*" if k in qrows else "", r["stage"], stage_kind(r["stage"]),
+                     stage_words(r["stage"]), _cell(r.get("chi2")), _cell(r.get("dof"), "%d"),
+                     _cell(r.get("n_params"), "%d"),
+                     _cell(r["chi2_dof"], "%.3g") if float(r.get("dof", 1)) > 0 else
+                     "untestable", _cell(r.get("p_value"), "%.3g")))
+    md += [""] + ["- " + w for w in (dof_words(stair) if len(stair) else [])]
     md += ["", "![staircase](staircase.png)", "", "## Parameters", ""]
-    p = res.parameters.copy()
+    p = parameters if parameters is not None else annotate_parameters(
+        res.parameters, getattr(dataset, "conditions", None))
+    p = p.copy()
     if "note" not in p.columns:
         p["note"] = ""
     p["note"] = p["note"].fillna("")
-    md += frame_table_lines(p, ["name", "role", "value", "se", "note"])
-    md += ["", "## Candidates", ""]
-    md += frame_table_lines(res.diagnosis, ["rank", "effect", "kind", "significant", "strength",
-                                            "strength_se", "delta_chi2", "p_bonferroni", "step"])
-    for b in i.get("bootstrap") or []:
-        md += ["", "Significance calibrated at step %d on %d datasets drawn from the fitted "
-               "model: threshold x %.2f; %d of them named an effect at the nominal level."
-               % (b["step"], b["n_draws"], b["scale"], b["n_false"])]
+    if "constrained" not in p.columns:
+        p["constrained"] = None
+    md += ["| name | role | value | se | constrained by the data | note |",
+           "|---|---|---|---|---|---|"]
+    for _, r in p.iterrows():
+        c = r["constrained"]
+        md.append("| %s | %s | %s | %s | %s | %s |"
+                  % (r["name"], r["role"], _cell(r["value"]), _cell(r.get("se")),
+                     "-" if c is None or pd.isna(c) else ("yes" if bool(c) else "**no**"),
+                     r["note"]))
+    md += ["", "The rule, once: " + UNCONSTRAINED_RULE + ".", "", "## Candidates", ""]
+    d = diagnosis if diagnosis is not None else res.diagnosis
+    md += ["Order: the effects added first, in the order added (column `step`: the step that "
+           "added them); then the last step's candidates, the identifiable ones first "
+           "(column `identifiable`), each group by its chi2 gain (`delta_chi2`), largest "
+           "first. `needed` is the chi2 gain the candidate had to exceed at its step (the test "
+           "as applied, below); a candidate is significant when it is identifiable and its "
+           "gain exceeds it.", ""]
+    dc = ["rank", "effect", "kind", "identifiable", "significant", "delta_chi2", "needed",
+          "strength", "strength_se", "p_bonferroni", "step"]
+    md += ["| " + " | ".join(dc) + " |", "|" + "---|" * len(dc)]
+    for _, r in d.iterrows():
+        md.append("| " + " | ".join(_cell(r.get("delta_chi2_needed") if c == "needed"
+                                          else r.get(c)) for c in dc) + " |")
+    sig = significance
+    if sig is None:
+        sig = [{"step": k, "nominal_delta_chi2": float(g.threshold_delta_chi2),
+                "bootstrap_scale": step_scale(res.steps, k),
+                "applied_delta_chi2": float(g.threshold_delta_chi2) * step_scale(res.steps, k),
+                "n_candidates": len(g.table), "alpha": float(g.alpha)}
+               for k, g in enumerate(res.diagnoses, start=1)]
+    boots = {int(b["step"]): b for b in (i.get("bootstrap") or [])}
+    if sig:
+        md += ["", "The significance test as applied, per step: a candidate's chi2 gain must "
+               "exceed the Bonferroni threshold (the chi2_1 quantile at alpha / candidates, "
+               "one-sided) times the bootstrap's scale (datasets drawn from the step's fitted "
+               "model, diagnosed the same way; 1 where no draw was made), its F-test at the "
+               "misfit it leaves (gain / chi2/dof after it, at the same level) and the BIC's "
+               "ln n; the figure draws the first step.", ""]
+        for b in sig:
+            bs = boots.get(int(b["step"]))
+            md.append("- step %d: %.3g (alpha %g over %d candidates) x %.2f = %.3g%s"
+                      % (b["step"], b["nominal_delta_chi2"], b["alpha"], b["n_candidates"],
+                         b["bootstrap_scale"], b["applied_delta_chi2"],
+                         "; %d of %d bootstrap datasets named an effect at the nominal level"
+                         % (bs["n_false"], bs["n_draws"]) if bs else ""))
     md += ["", "![ranking](ranking.png)", "",
            "Model: %d twin runs at the dataset's conditions (%d new this time), anchor %s%s; "
            "wall time %.0f s." % (len(res.model_runs), i["new_runs"], _fmt_theta(i["anchor"]),
                                   ("; re-anchored %d time(s)" % len(i["reanchors"]))
                                   if i["reanchors"] else "", i["wall_s"]), ""]
+    if fake:
+        md += ["*%s.*" % FAKE_WORDS, ""]
     return "\n".join(md)
 
 
@@ -179,8 +265,29 @@ def demo_page(table, meta, extra=()) -> str:
              % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max(),
                 int((table["f_col_diff_pct"].abs() < 1e-9 + 100 / table["f_col_measured_hz"]
                      / meta["record_s"]).sum()), len(table)),
-             ""] + ["- " + x for x in extra] + ["", "![v_mean over frequency](demo.png)", ""]
+             ""] + ["- " + x for x in extra] + ["", "![v_mean over frequency](demo.png)", "",
+                                                 "## Why the paper's parameters and the "
+                                                 "calibrated ones differ", "",
+                                                 demo_why_words(meta), ""]
     return "\n".join(lines)
+
+
+def demo_why_words(meta) -> str:
+    """The demo page's two sentences on why the paper's parameters (C_R 0.11, A as in
+    ``meta``) and the calibrated ones (the loop's, the measured-apparatus profile's) differ."""
+    identified = "paper's DEM" in str(meta.get("apparatus", ""))
+    return ("The paper's contact parameters (C_R 0.11, SF 0.7, RF 0.5) are the inputs of the "
+            "paper's EDEM model, and the stroke A = %.1f mm beside them %s: they stand for the "
+            "paper's simulation, not for the measurements. The calibrated parameters (the "
+            "loop's in "
+            "[loop/report.md](loop/report.md), the calibrated line above) are fitted to the "
+            "measured column of Table 3 with this twin's own contact law, which is not EDEM's "
+            "(docs/apparatus.md), and the twin has no mechanism for the measured fall of v/f "
+            "with frequency, so the fit buys the speeds' level with restitution and stroke - a "
+            "different target and a different contact law, not one set correcting the other."
+            % (float(meta["amplitude_m"]) * 1e3,
+               "was fitted so that this twin reproduces the paper's DEM column" if identified
+               else "is the twin's default"))
 
 
 def hidden_suite_page(summ, pe) -> str:

@@ -53,7 +53,21 @@ EXTERNAL_PAGES = {"demo": "analysis.demo", "hidden_suite": "analysis.hidden_suit
                   "paper_diagnosis": "analysis.studies.paper_diagnosis",
                   "apparatus": "analysis.studies.apparatus_screen (make apparatus)"}
 EXTERNAL_PAGE_NAMES = ("README.md", "report.md")
-IGNORED_FOLDERS = ("runs",)
+#: caches, never committed: no index row
+IGNORED_FOLDERS = ("runs", "runs_fake", "track_cache")
+#: folders without one page of their own: folder -> (what it holds, what writes it); the index
+#: links the pages of their sub-folders (README.md or report.md) and lists their files
+FOLDER_INDEX = {
+    "loop": ("the loop on a dataset, one folder per dataset (report.md, the tables, figures)",
+             "`analysis.loop` (make loop)"),
+    "open_world": ("the loop on blind open-world datasets whose truth is known, and the "
+                   "datasets", "`analysis.open_suite` (make open-world)"),
+    "bench": ("timings: the loop from an empty cache, the scene's profile",
+              "`analysis.bench.loop_cold` (make bench-loop), `analysis.bench.profile` "
+              "(make bench-profile)"),
+    "hidden_blind": ("a blind hidden-effect dataset made by the real twin, its truth sealed "
+                     "in truth/", "`analysis.studies.hidden_blind_data`"),
+}
 
 #: paper Table 5 (Anglou et al. 2024): surrogate % errors vs DEM at the validation cases
 #: (r = 10 mm at 25, 27.5, 30 Hz); the issue-5 goal is the LR column's worst case
@@ -698,6 +712,34 @@ def _external_page(folder):
     return None
 
 
+def _sub_pages(folder) -> list:
+    """The pages (README.md or report.md) of ``folder``'s direct sub-folders, as relative
+    links."""
+    out = []
+    for sub in sorted(p for p in Path(folder).iterdir() if p.is_dir()):
+        page = _external_page(sub)
+        if page:
+            out.append(f"{sub.name}/{page}")
+    return out
+
+
+def _folder_contents(folder, most: int = 12) -> str:
+    """The index's last cell for a folder without a study page: its sub-folders' pages as
+    links (at most ``most``, then how many more), else its files."""
+    folder = Path(folder)
+    subs = _sub_pages(folder)
+    if subs:
+        links = ", ".join(f"[{s.split('/')[0]}]({folder.name}/{s})" for s in subs[:most])
+        more = len(subs) - most
+        return links + (f" and {more} more" if more > 0 else "")
+    files = sorted(p.name for p in folder.iterdir() if p.is_file())
+    if not files:
+        dirs = sorted(p.name for p in folder.iterdir() if p.is_dir())
+        return ", ".join(f"[{d}/]({folder.name}/{d}/)" for d in dirs[:most]) or "-"
+    return ", ".join(f"`{f}`" for f in files[:most]) + (
+        f" and {len(files) - most} more" if len(files) > most else "")
+
+
 def render_index(results_dir, results: list[PageResult]) -> str:
     """results/README.md: one row per study page, external page and other folder."""
     results_dir = Path(results_dir)
@@ -712,16 +754,30 @@ def render_index(results_dir, results: list[PageResult]) -> str:
             continue
         page = _external_page(d)
         link = f"[{name}]({name}/{page})" if page else f"[{name}]({name}/)"
+        subs = _sub_pages(d)
         rows.append([link, f"written by `{module}`", "ok" if page else
-                     "**no README.md or report.md**", "-"])
-    known = {s.name for s in STUDIES} | set(EXTERNAL_PAGES) | set(IGNORED_FOLDERS)
+                     "**no README.md or report.md**",
+                     _folder_contents(d) if subs else "-"])
+    for name, (what, module) in FOLDER_INDEX.items():
+        d = results_dir / name
+        if not d.is_dir():
+            continue
+        page = _external_page(d)
+        link = f"[{name}]({name}/{page})" if page else f"[{name}]({name}/)"
+        rows.append([link, f"{what}; written by {module}",
+                     "ok" if any(d.iterdir()) else "**empty**", _folder_contents(d)])
+    known = ({s.name for s in STUDIES} | set(EXTERNAL_PAGES) | set(FOLDER_INDEX)
+             | set(IGNORED_FOLDERS))
     others = sorted(p.name for p in results_dir.iterdir()
                     if p.is_dir() and p.name not in known and not p.name.startswith("."))
     for name in others:
-        rows.append([f"[{name}]({name}/)", "no report page", "-", "-"])
+        rows.append([f"[{name}]({name}/)", "no report page", "-", _folder_contents(
+            results_dir / name)])
     return "\n".join([
         "# Results", "", GENERATED_NOTE.replace("this folder", "the study folders"), "",
-        "One page per study; `runs/` is the cache of twin recordings (not committed).", "",
+        "One row per folder of results/: a study page, a page another command writes, or a "
+        "folder of several pages; `runs/`, `runs_fake/` and `track_cache/` are caches (twin "
+        "recordings, the FAKE twin's, tracked films) and not committed.", "",
         md_table(["folder", "study", "page", "key figures"], rows), ""])
 
 
