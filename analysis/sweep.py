@@ -113,6 +113,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from analysis.atomic_dir import OutputError
 from analysis.config import RUNS_DIR, twin_config
 
 BACKENDS = ("local", "serial", "dask")
@@ -1114,10 +1115,11 @@ def write_yade_batch_table(configs, path, columns=None):
     for rid, cfg in zip(ids, full):
         rows.append([rid] + [_py_literal(cfg[k]) for k in columns])
     widths = [max(len(r[j]) for r in rows) for j in range(len(rows[0]))]
-    text = "# yade-batch parameter table written by analysis.sweep; description = run id\n"
+    text = YADE_TABLE_HEAD + "; description = run id\n"
     text += "\n".join("  ".join(s.ljust(w) for s, w in zip(r, widths)).rstrip()
                       for r in rows) + "\n"
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(".%s.%s.tmp" % (path.name, uuid.uuid4().hex[:8]))
     tmp.write_text(text)
     os.replace(tmp, path)
@@ -1200,6 +1202,32 @@ def build_parser():
     return p
 
 
+#: the first line of every yade-batch table :func:`write_yade_batch_table` writes
+YADE_TABLE_HEAD = "# yade-batch parameter table written by analysis.sweep"
+
+
+def _is_own_yade_table(path) -> bool:
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            return fh.readline().startswith(YADE_TABLE_HEAD)
+    except OSError:
+        return False
+
+
+def check_outputs(out=None, yade_table=None, inputs=()):
+    """The project's file rule (:func:`analysis.atomic_dir.check_out_file`) for the sweep's
+    ``--out`` table and ``--export-yade-table``, before any run: never an input (the parameter
+    table, the sweep config), never an existing file that is not this command's own earlier
+    output (a sweep table: its status columns first; a yade-batch table: its header line)."""
+    from analysis.atomic_dir import check_out_file, own_csv
+    inputs = [p for p in inputs if p]
+    if out:
+        check_out_file(out, inputs, is_own=own_csv(STATUS_COLUMNS, prefix=True), flag="--out")
+    if yade_table:
+        check_out_file(yade_table, inputs, is_own=_is_own_yade_table,
+                       flag="--export-yade-table")
+
+
 def _write_table(table, out):
     """Write the sweep table as CSV, atomically (a temporary file renamed onto ``out``)."""
     out = Path(out)
@@ -1229,6 +1257,8 @@ def main(argv=None):
         base.update(dict(args.base))
         configs = [{**base, **c} for c in configs]
         prepare_configs(configs)
+        check_outputs(args.out or opts.get("out"), args.export_yade_table,
+                      inputs=[table, args.sweep_config])
         if args.export_yade_table:
             out = write_yade_batch_table(configs, args.export_yade_table)
             print("wrote %s (%d runs)" % (out, len(configs)))
@@ -1249,7 +1279,7 @@ def main(argv=None):
                         progress=not args.no_progress,
                         scheduler=args.scheduler or opts.get("scheduler"),
                         slurm=slurm or None, runner_kwargs=runner_kwargs or None)
-    except (SweepInputError, twin_config.ConfigError) as exc:
+    except (SweepInputError, twin_config.ConfigError, OutputError) as exc:
         print("analysis.sweep: error: %s" % exc, file=sys.stderr)
         return 2
     except SweepInterrupted as exc:

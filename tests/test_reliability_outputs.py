@@ -29,6 +29,7 @@ from analysis import atomic_dir
 from analysis import flights as flt
 from analysis import loop
 from analysis import observe as obs
+from analysis import sweep
 from analysis.config import PAPER_TABLE3_DIR, REPO_ROOT
 from analysis.parameter_space import BASE_STEPS, CALIBRATED
 from yade_scripts import out_rule
@@ -72,6 +73,7 @@ def work(tmp_path, monkeypatch, track_frame):
     (w / "notes" / "sub" / "data.csv").write_text("a,b\n1,2\n")
     (w / "file.txt").write_text("a file")
     (w / "foreign.csv").write_text("x,y\n1,2\n")
+    (w / "params.csv").write_text("seed\n1\n2\n")
     shutil.copytree(PAPER_TABLE3_DIR, w / "ds")
     one = w / "one"
     shutil.copytree(PAPER_TABLE3_DIR, one)
@@ -113,6 +115,12 @@ def _observe(out):
 def _flights(out):
     return ("flights", lambda w: [str(w / "track.csv"), "--frequency-hz", "25", "--impacts",
                                   out(w)])
+
+
+def _sweep(flag, out):
+    return ("sweep", lambda w: ["--table", str(w / "params.csv"), "--runs-dir",
+                                str(w.parent / "runs"), "--backend", "serial", "--no-progress",
+                                flag, out(w)])
 
 
 def _mill(out, cfg=lambda w: w / "cfg.json"):
@@ -169,6 +177,17 @@ ROWS = [
     ("flights-impacts-in-a-source-folder", _flights(lambda w: str(REPO_ROOT / "yade_scripts"
                                                                   / "i.csv")),
      ["--impacts", "outside results/"], REPO_ROOT / "yade_scripts", []),
+    # --- the sweep's --out table and --export-yade-table: the same rule
+    ("sweep-out-is-its-parameter-table", _sweep("--out", lambda w: str(w / "params.csv")),
+     ["--out", "input"], None, []),
+    ("sweep-out-foreign-file", _sweep("--out", lambda w: str(w / "foreign.csv")),
+     ["--out", "already exists"], None, []),
+    ("sweep-yade-table-is-its-parameter-table",
+     _sweep("--export-yade-table", lambda w: str(w / "params.csv")),
+     ["--export-yade-table", "input"], None, []),
+    ("sweep-yade-table-foreign-file",
+     _sweep("--export-yade-table", lambda w: str(w / "notes" / "thesis.tex")),
+     ["--export-yade-table", "already exists"], None, []),
     # --- the loop's options, before planning (the dry run included)
     ("loop-budget-runs-negative-dry-run", _loop("--dry-run", "--budget-runs", "-1"),
      ["--budget-runs", ">= 0", "-1"], None, []),
@@ -218,6 +237,7 @@ ROWS = [
 ]
 
 PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: error: ",
+          "sweep": "analysis.sweep: error: ",
           "loop": "analysis.loop: error: ", "mill": "mill.py: error: "}
 
 
@@ -230,7 +250,8 @@ def _run(command, args):
                               timeout=300)
         own = [ln for ln in proc.stderr.splitlines() if ln.startswith("mill.py:")]
         return proc.returncode, proc.stdout + proc.stderr, own
-    main = {"observe": obs.main, "flights": flt.main, "loop": loop.main}[command]
+    main = {"observe": obs.main, "flights": flt.main, "loop": loop.main,
+            "sweep": sweep.main}[command]
     try:
         rc = main(args)
     except SystemExit as exc:              # argparse's own exit
@@ -335,6 +356,17 @@ def test_observe_and_flights_replace_their_own_earlier_file(work, capsys):
     assert list(pd.read_csv(work / "results" / "impacts.csv").columns) == list(
         flt.IMPACT_TABLE_COLUMNS)
     assert not [p for p in (work / "results").iterdir() if p.name.startswith(".")]
+
+
+def test_sweep_replaces_its_own_tables(work, capsys):
+    runner = "analysis.fake_twin:run_fake_twin"
+    for flag, name in (("--export-yade-table", "runs.table"), ("--out", "sweep.csv")):
+        for _ in range(2):                              # new, then its own: replaced
+            assert sweep.main(["--table", str(work / "params.csv"), "--runner", runner,
+                               "--runs-dir", str(work.parent / "runs"), "--backend", "serial",
+                               "--no-progress", flag, str(work / "results" / name)]) == 0, \
+                capsys.readouterr().err
+    assert (work / "params.csv").read_text() == "seed\n1\n2\n"
 
 
 def test_dof_refused_or_capped_before_planning(work):
