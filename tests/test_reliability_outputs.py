@@ -153,6 +153,12 @@ ROWS = [
      ["--out", "outside results/"], REPO_ROOT / "yade_scripts", [yade]),
     ("mill-out-own-recording-plus-a-stranger", _mill(_own_recording_plus_stranger),
      ["--out", "did not write"], None, [yade]),
+    ("profile-out-foreign-file", ("profile", lambda w: ["--config", str(w / "cfg.json"),
+                                                        "--out", str(w / "foreign.csv")]),
+     ["--out", "already exists"], None, [yade]),
+    ("profile-out-is-its-config", ("profile", lambda w: ["--config", str(w / "cfg.json"),
+                                                         "--out", str(w / "cfg.json")]),
+     ["--out", "input"], None, [yade]),
     # --- observe --out: never the input, never a file it did not write
     ("observe-out-is-its-input-track", _observe(lambda w: str(w / "track.csv")),
      ["--out", "input"], None, []),
@@ -238,17 +244,19 @@ ROWS = [
 
 PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: error: ",
           "sweep": "analysis.sweep: error: ",
-          "loop": "analysis.loop: error: ", "mill": "mill.py: error: "}
+          "loop": "analysis.loop: error: ", "mill": "mill.py: error: ",
+          "profile": "profile_scene.py: error: "}
 
 
 def _run(command, args):
     """(exit code, stdout, the command's own error lines) - in-process for the analysis
     commands, YADE as a subprocess for the scene."""
-    if command == "mill":
-        proc = subprocess.run(["yade", "-n", "-x", str(MILL), *args], cwd=os.getcwd(),
+    if command in ("mill", "profile"):
+        script = MILL if command == "mill" else MILL.with_name("profile_scene.py")
+        proc = subprocess.run(["yade", "-n", "-x", str(script), *args], cwd=os.getcwd(),
                               capture_output=True, text=True, stdin=subprocess.DEVNULL,
                               timeout=300)
-        own = [ln for ln in proc.stderr.splitlines() if ln.startswith("mill.py:")]
+        own = [ln for ln in proc.stderr.splitlines() if ln.startswith(script.name + ":")]
         return proc.returncode, proc.stdout + proc.stderr, own
     main = {"observe": obs.main, "flights": flt.main, "loop": loop.main,
             "sweep": sweep.main}[command]
@@ -282,7 +290,7 @@ def test_refused_with_one_line_and_nothing_changed(command, argv, words, aims_at
     assert tree_hash(work) == before
     if aims_at:
         assert tree_hash(aims_at) == repo_before
-    if command == "mill":                  # refused before any simulation: no scene built
+    if command in ("mill", "profile"):     # refused before any simulation: no scene built
         assert time.time() - t0 < 60
         assert not list(work.parent.glob("**/.tmp-*"))
 

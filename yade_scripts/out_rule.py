@@ -112,3 +112,49 @@ def check_run_out(out_dir, repo_root, inputs=(), flag="--out"):
                              "mark, not a recording of this scene); give a new or empty folder"
                              % (flag, out_dir, MARKER))
     return out
+
+
+def check_out_file(out_file, repo_root, inputs=(), is_own=None, flag="--out"):
+    """Raise :class:`OutRefused` when ``out_file`` is not a file the scene's tools may (re)write
+    (``analysis.atomic_dir.check_out_file``'s rule): a folder, a path in the repository outside
+    ``results/``, an input, a path under a file, an existing file unless ``is_own(path)``.
+
+    Returns
+    -------
+    str - ``out_file`` resolved
+    """
+    out = os.path.realpath(os.path.expanduser(out_file))
+    repo = os.path.realpath(repo_root)
+    if os.path.isdir(out):
+        raise OutRefused("%s %s is a folder; give a file name" % (flag, out_file))
+    if _within(out, repo) and not _within(os.path.dirname(out), os.path.join(repo, "results")):
+        raise OutRefused("%s %s lies in the repository outside results/; give results/<name> "
+                         "or a path outside the repository" % (flag, out_file))
+    for p in inputs or ():
+        if p and _within(out, os.path.realpath(os.path.expanduser(p))):
+            raise OutRefused("%s %s is an input: outputs never replace what was read"
+                             % (flag, out_file))
+    anc = os.path.dirname(out)
+    while not os.path.lexists(anc) and os.path.dirname(anc) != anc:
+        anc = os.path.dirname(anc)
+    if not os.path.isdir(anc):
+        raise OutRefused("%s %s: %s is a file, not a folder" % (flag, out_file, anc))
+    if os.path.lexists(out) and not (is_own is not None and is_own(out)):
+        raise OutRefused("%s %s already exists and is not an earlier output of this command; "
+                         "give a new file name" % (flag, out_file))
+    return out
+
+
+def write_atomic(path, text):
+    """Write ``text`` to a temporary file beside ``path`` and rename it over ``path``."""
+    parent = os.path.dirname(os.path.abspath(path))
+    os.makedirs(parent, exist_ok=True)
+    tmp = os.path.join(parent, ".%s.tmp-%d" % (os.path.basename(path), os.getpid()))
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

@@ -22,6 +22,7 @@ if HERE not in sys.path:
 
 import mill  # noqa: E402
 import twin_config  # noqa: E402
+from out_rule import OutRefused, check_out_file, write_atomic  # noqa: E402
 from yade import O  # noqa: E402
 from yade.wrapper import PyRunner  # noqa: E402
 
@@ -63,12 +64,32 @@ class Probe:
         self.own_s += time.perf_counter() - t0
 
 
+#: keys every profile this script writes holds
+PROFILE_KEYS = ("config", "steps", "wall_s", "probe_steps", "engines")
+
+
+def _is_own_profile(path) -> bool:
+    try:
+        with open(path) as fh:
+            d = json.load(fh)
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and all(k in d for k in PROFILE_KEYS)
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="profile_scene.py")
     p.add_argument("--config", required=True)
     p.add_argument("--out", required=True)
     a = p.parse_args(sys.argv[1:] if argv is None else argv)
-    cfg = twin_config.load_config(a.config)
+    try:
+        cfg = twin_config.load_config(a.config)
+        # the project's output rule, before the run: never the config, never an existing
+        # file that is not a profile this script wrote
+        out_path = check_out_file(a.out, mill.ROOT, [a.config], is_own=_is_own_profile)
+    except (twin_config.ConfigError, OutRefused) as exc:
+        sys.stderr.write("profile_scene.py: error: %s\n" % exc)
+        return 2
     twin, n_max = mill.build_twin(cfg)
     probe = Probe(twin)
     import __main__
@@ -86,8 +107,7 @@ def main(argv=None):
            "engines": {s: {k: {"ns": v[0], "calls": v[1]} for k, v in b.items()}
                        for s, b in probe.book.items()},
            "done": bool(twin.done), "error": twin.error}
-    with open(a.out, "w") as fh:
-        json.dump(out, fh, indent=1)
+    write_atomic(out_path, json.dumps(out, indent=1))
     print("profile_scene.py: wrote %s (%d steps in %.1f s)" % (a.out, out["steps"], wall))
     return 0
 
