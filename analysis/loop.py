@@ -933,7 +933,8 @@ def _diagnosis_table(steps, added, eff_se):
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                    confirm=None):
-    from analysis.report.loop_words import stated_stroke_words
+    from analysis.report.loop_words import prior_sd, stated_stroke_words, \
+        UNCONSTRAINED_SE_RATIO
     head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
             "calibrated chi2/dof untestable (dof %d: no more observations than fitted "
             "parameters)" % cal.dof)
@@ -988,6 +989,24 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                 held.append("%s held at the anchor %.4g (%s)"
                             % (k, float(model.theta_ref.get(k, np.nan)), reason))
         parts.append("; ".join(held))
+    # parameters the data leave about as uncertain as the prior (the report's rule)
+    loose = []
+    try:
+        bounds = {p.name: (p.lower, p.upper) for p in model.base_params()}
+    except (AttributeError, TypeError):
+        bounds = {}
+    cands = candidates()
+    bounds.update({k: (0.0, float(cands[k].s_max)) for k in added if k in cands})
+    priors = getattr(model, "priors", None) or {}
+    for k in bounds:
+        se = float(final.stderr.get(k, np.nan)) if k not in added else float(
+            eff_se.get(k, np.nan))
+        sd = prior_sd(k, bounds, priors)
+        if np.isfinite(sd) and sd > 0 and not (np.isfinite(se)
+                                               and se < UNCONSTRAINED_SE_RATIO * sd):
+            loose.append("%s (se %.2g for a prior sd %.2g)" % (k, se, sd))
+    if loose:
+        parts.append("not constrained by the data: " + ", ".join(loose))
     beyond = model.outside(final.params)
     if beyond:
         parts.append("the final point lies beyond the model's measured responses (%s; no "

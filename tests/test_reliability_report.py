@@ -363,3 +363,19 @@ def test_index_renders_every_folder(tmp_path):
     assert "[open_world](open_world/README.md)" in text
     assert "`loop_cold.txt`" in text and "[hidden_blind](hidden_blind/)" in text
     assert "[mystery](mystery/)" in text and "runs_fake](" not in text
+
+
+def test_unconstrained_parameters_are_named_in_the_verdict_and_page(fake_loop):
+    out, _ = fake_loop
+    info = _strict_json(out / "loop.json")
+    par = pd.read_csv(out / "parameters.csv")
+    loose = sorted(par.loc[par["constrained"].astype(str) == "False", "name"])
+    assert sorted(info["unconstrained"]) == loose
+    page = (out / "report.md").read_text()
+    assert info["unconstrained_rule"] in page
+    if loose:
+        words = info["verdict"].split("not constrained by the data: ")[1]
+        for name in loose:
+            assert name in words
+            assert any(l.startswith("| %s |" % name) and "**no**" in l
+                       for l in page.splitlines())

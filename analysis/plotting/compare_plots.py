@@ -320,7 +320,10 @@ def plot_effect_ranking(diagnosis, ax=None, *, dataset=None, dataset_name: str |
              float(np.max(need[above])) if above.any() else 0.0, 1e-9)
     for i in range(n):
         words = "%.3g" % gain[i] + ("" if ident[i] else "  not identifiable")
-        ax.text(gain[i] + (0.03 if bound[i] else 0.012) * hi, i, words, va="center",
+        at = gain[i]
+        if above[i] and gain[i] - 0.01 * hi <= need[i] <= gain[i] + 0.35 * hi:
+            at = need[i]                # clear of the tick just beyond the bar
+        ax.text(at + (0.03 if bound[i] else 0.012) * hi, i, words, va="center",
                 ha="left", fontsize=7,
                 bbox=dict(facecolor="white", edgecolor="none", alpha=0.7, pad=0.5))
     if bound.any():
