@@ -8,6 +8,9 @@
   suite, compare, diagnose, the signature library and the studies that keep a page). Each is a
   function from the results the stage has computed to the page's text; the stage writes it
   (atomically, inside its output folder) under the file name it always had.
+- :mod:`analysis.report.loop_words`: what the loop's page, figures and loop.json say about its
+  numbers, declared once (what each staircase stage is, which the verdict quotes, the chi2
+  gain each candidate needed, the FAKE mark, the rule for an unconstrained parameter).
 - :mod:`analysis.report.markdown`: the shared blocks (number formatting, tables, the
   SYNTHETIC banner, the atomic write of one file).
 
