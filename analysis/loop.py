@@ -1357,9 +1357,12 @@ def _main(argv=None):
     except BudgetError as exc:
         print("analysis.loop: %s" % exc, file=sys.stderr)
         return 3
-    except (DatasetError, ConditionError, OutputError, ValueError, RuntimeError) as exc:
+    except (DatasetError, ConditionError, OutputError, ValueError) as exc:
         print("analysis.loop: error: %s" % exc, file=sys.stderr)
         return 2
+    except RuntimeError as exc:                     # a twin run failed: not the input's fault
+        print("analysis.loop: error: %s" % str(exc).replace("\n", " "), file=sys.stderr)
+        return 1
     print(res.verdict)
     print("staircase: " + ", ".join("%s %.2f" % (r.stage, r.chi2_dof)
                                     for r in res.staircase.itertuples()))

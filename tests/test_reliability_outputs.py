@@ -566,3 +566,19 @@ def test_dry_run_counts_the_runs_the_loop_then_makes(fake_dataset, tmp_path, mon
     planned = int(total[0].split()[1])
     assert loop.main(opts) == 0, capsys.readouterr().err[-2000:]
     assert len(list(runs.glob("*/meta.json"))) == planned
+
+
+def test_a_failing_twin_run_is_one_line_and_not_the_bad_input_code(work, monkeypatch, capsys):
+    """Fault injection: every twin run fails (as a ball that leaves the jar does). The loop
+    says so in one line and exits 1 - not 2, the code of a bad input, after its runs."""
+    import analysis.fake_twin as fake
+
+    def failing(config, runs_dir=None, force=False):
+        raise RuntimeError("the ball left the jar at t = 0.01 s")
+    monkeypatch.setattr(fake, "run_fake_twin", failing)
+    rc = loop.main(["--dataset", str(work / "ds"), "--out", str(work / "lo"), "--fake",
+                    "--workers", "1", "--backend", "serial"])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("analysis.loop")]
+    assert rc == 1, err
+    assert len(err) == 1 and "failed" in err[0] and "left the jar" in err[0], err
+    assert not (work / "lo").exists()
