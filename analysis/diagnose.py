@@ -343,6 +343,11 @@ class Problem:
         self._index_seen, self._indexer = None, None
         self.conditions = conditions
         mu0 = self.mu({p.name: p.value for p in self.base}, {})
+        # a callable model_se(theta, effects) -> Series: the model's uncertainty depends on
+        # where it is asked (an emulator's), and every fit's likelihood carries it there
+        self._se_fn = model_se if callable(model_se) else None
+        if self._se_fn is not None:
+            model_se = self._se_fn({p.name: p.value for p in self.base}, {})
         if model_se is None:
             se = np.zeros_like(self.y)
         elif np.isscalar(model_se):
@@ -405,15 +410,33 @@ class Problem:
             self.fixed = keep
         return {p.name: f.params[p.name] for p in self.base}
 
-    def penalty(self, effects):
-        """sum log(sigma^2 / sigma_0^2) at these effect strengths (0 without ``effect_se``)."""
-        if self.effect_se is None:
-            return 0.0
-        return float(np.sum(2.0 * np.log(self.sigma_for(effects) / self.sigma_for({}))))
+    @property
+    def varying_sigma(self):
+        """sigma depends on the parameters (a callable model_se) or on the strengths."""
+        return self._se_fn is not None or self.effect_se is not None
 
-    def sigma_for(self, effects):
+    def penalty(self, effects, theta=None):
+        """sum log(sigma^2 / sigma_0^2) at these effect strengths (and base parameters, with a
+        callable model_se); 0 when sigma is constant."""
+        if not self.varying_sigma:
+            return 0.0
+        return float(np.sum(2.0 * np.log(self.sigma_for(effects, theta) / self.sigma)))
+
+    def sigma_for(self, effects, theta=None):
         """sigma with the model's extra uncertainty at these effect strengths (``effect_se``,
-        e.g. a library's interpolation between its signature levels) added in quadrature."""
+        e.g. a library's interpolation between its signature levels) added in quadrature; with
+        a callable model_se, the model's uncertainty at ``theta`` and these strengths."""
+        if self._se_fn is not None and theta is not None:
+            eff = dict(self.fixed)
+            eff.update(effects or {})
+            key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
+            if key not in self._esig:
+                se = pd.Series(self._se_fn(dict(theta), eff)).reindex(self.keys)
+                se = se.fillna(0.0).to_numpy(float)
+                if not np.all(np.isfinite(se)) or np.any(se < 0):
+                    raise ValueError("model_se returned a negative or non-finite value")
+                self._esig[key] = np.sqrt(self.sd ** 2 + se ** 2)
+            return self._esig[key]
         eff = dict(self.fixed)
         eff.update(effects or {})
         on = {k: float(v) for k, v in eff.items()
@@ -449,8 +472,8 @@ class Problem:
             x0 = np.append(x0, e.null if start_strength is None else start_strength)
         span = hi - lo
         nb = len(self.base)
-        varying = effect is not None and self.effect_se is not None
-        sigma_0 = self.sigma_for({})
+        varying = (effect is not None and self.effect_se is not None) or self._se_fn is not None
+        sigma_0 = self.sigma
 
         def unpack(u):
             x = lo + span * np.clip(u, 0.0, 1.0)
@@ -460,13 +483,13 @@ class Problem:
 
         def whitened(u):
             theta, eff = unpack(u)
-            return (self.y - self.mu(theta, eff)) / self.sigma_for(eff)
+            return (self.y - self.mu(theta, eff)) / self.sigma_for(eff, theta)
 
         def fun(u):
             r = whitened(u)
             if not varying:
                 return r
-            pen = 2.0 * np.log(self.sigma_for(unpack(u)[1]) / sigma_0)
+            pen = 2.0 * np.log(self.sigma_for(unpack(u)[1], unpack(u)[0]) / sigma_0)
             return np.concatenate([r, np.sqrt(np.maximum(pen, 0.0))])
 
         def fd_jac(f, u):
@@ -489,8 +512,8 @@ class Problem:
         u = np.clip(sol.x, 0.0, 1.0)
         theta, eff = unpack(u)
         mu = self.mu(theta, eff)
-        sigma = self.sigma_for(eff)
-        penalty = self.penalty(eff) if varying else 0.0
+        sigma = self.sigma_for(eff, theta)
+        penalty = self.penalty(eff, theta) if varying else 0.0
         Ju = -fd_jac(whitened, u)          # d(mu / sigma) / du
         Jx = Ju / span                     # per physical unit
         cov = np.linalg.pinv(Jx.T @ Jx)
@@ -510,7 +533,7 @@ class Problem:
     def stage(self, theta, eff=None) -> FitResult:
         """Model at fixed parameters (no fit): a FitResult with dof = n."""
         mu = self.mu(theta, eff or {})
-        sig = self.sigma_for(eff or {})
+        sig = self.sigma_for(eff or {}, theta)
         z = (mu - self.y) / sig
         return FitResult(params=dict(theta), stderr={}, cov=pd.DataFrame(),
                          chi2=float(np.sum(z ** 2)), dof=self.n,
@@ -535,13 +558,13 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
     if not len(grid):
         return []
     J = np.zeros((prob.n, 0)) if J is None else np.asarray(J, float)
-    s0 = prob.sigma_for({})
+    s0 = prob.sigma_for({}, theta)
     chi2 = []
     for g in grid:
-        sg = prob.sigma_for({name: g})        # J was whitened by s0: rescale its rows
+        sg = prob.sigma_for({name: g}, theta)   # J was whitened by s0: rescale its rows
         r = (prob.mu(theta, {name: g}) - prob.y) / sg
         chi2.append(float(np.sum(_project_out(J * (s0 / sg)[:, None], r) ** 2))
-                    + prob.penalty({name: g}))
+                    + prob.penalty({name: g}, theta))
     chi2 = np.array(chi2)
     step = (e.upper - e.lower) / max(n_scan - 1, 1)
     out = []
@@ -585,10 +608,12 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         calibratable parameters (starting values = the "baseline" stage)
     effects : list of Effect
         candidates (including decoys); each tested alone with the base refitted
-    model_se : None, float or Series
+    model_se : None, float, Series or callable
         the twin's replicate noise: standard error of its mean prediction. A float is read as a
         fraction of the baseline prediction; a Series is indexed by (condition_id, observable)
-        (see :func:`model_se_from_predictions`). None: a deterministic model.
+        (see :func:`model_se_from_predictions`); a callable (theta, effects) -> Series is the
+        model's uncertainty where it is asked (an emulator's), carried into every fit's
+        likelihood (with its log-sigma term). None: a deterministic model.
     crn_correlation : float in [0, 1]
         correlation of the twin's noise between two predict calls (1: deterministic or common
         random numbers; 0: independent seeds) - sets the noise of finite differences

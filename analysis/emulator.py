@@ -1,44 +1,108 @@
-"""Gaussian-process emulator of the twin: (parameters, operating conditions) -> outputs.
+"""The one Gaussian-process emulator of the twin: (parameters, effect strengths, conditions) -> outputs.
 
-One scikit-learn ``GaussianProcessRegressor`` per output, kernel
-``C * Matern(nu, ARD length scales) + WhiteKernel``, inputs scaled to the unit cube from
-declared bounds, outputs normalised. The WhiteKernel's noise level is the twin's own replicate
-scatter (DEM runs are chaotic; two seeds give different speeds), learned as a nugget from the
-design, so :meth:`GPEmulator.predict` can return the sd of a *new twin run* (latent + nugget) or
-of the twin's *mean* response (latent only).
+One scikit-learn ``GaussianProcessRegressor`` per output. Inputs are scaled to the centred unit
+cube [-0.5, 0.5] from declared bounds; outputs are normalised (``log_outputs`` are modelled as
+the log of their value: relative changes that multiply). The kernel::
 
-Quality is reported by closed-form leave-one-out (Rasmussen & Williams 2006, Sec. 5.4.2, eq.
-5.12, with the fitted hyperparameters held fixed): RMSE, relative RMSE and the coverage of the
-95 % predictive interval, and by :meth:`GPEmulator.score` on held-out runs.
+    C * Matern(nu, ARD length scales)  [+ C_lin * DotProduct(sigma_0)]  + WhiteKernel
+
+is the history-matching emulator of Vernon, Goldstein & Bower (2010) and Andrianakis et al.
+(2015) in Bayesian form: the optional linear part (``trend=True``) is a regression on the inputs
+whose coefficients carry their own uncertainty (a linear kernel is Bayesian linear regression),
+the Matern part the smooth departure from it, the nugget what neither explains.
+
+**The twin's chaos.** A twin run is one realisation of a chaotic motion: two seeds at one input
+give different outputs, with a scatter that differs by condition and observable. Two ways to
+carry it, chosen by what the runs hold:
+
+* ``noise_keys`` names the columns that set the noise (the condition's, e.g. ``frequency_hz``,
+  ``ball_diameter_m``): wherever runs repeat one input with several seeds (replicates), the
+  replicate variance is pooled per noise group and per output - each group's own estimate
+  shrunk towards the pooled relative variance (:data:`SHRINK_DOF` pseudo-degrees of freedom;
+  3 seeds leave one group's variance uncertain by a factor 2) - and enters the GP as a known
+  per-run noise (``alpha``); a group without replicates takes the pooled one. The WhiteKernel
+  holds what scatter remains beyond it, common to all groups;
+* without replicates (one seed per input, a Latin hypercube) the WhiteKernel alone is the chaos,
+  learned from the design.
+
+In both, the WhiteKernel's level is scatter of the runs about the smooth response - chaos, and
+near a motion-mode jump the jump's share that the smooth kernel does not follow - and is
+counted in the chaos of a new run, not in the emulator's uncertainty about the mean.
+
+:meth:`GPEmulator.predict_parts` separates the two: the latent sd (what more runs would remove:
+the emulator's uncertainty about the twin's mean response) and the chaos sd of one new run, so
+a mean of ``n`` new runs has variance ``latent^2 + chaos^2 / n``.
+
+Quality: closed-form leave-out with the fitted hyperparameters held (Rasmussen & Williams 2006,
+Sec. 5.4.2, eq. 5.12; for a block of runs left out together - every run of one design point,
+all its seeds and conditions - the block form of the same identity), reported as RMSE, the
+coverage of the 95 % interval of a new run and the mean z^2 (1 when the stated uncertainty is
+right); :meth:`GPEmulator.score` on held-out runs.
 
 References
 ----------
 Rasmussen, C. E. & Williams, C. K. I. (2006). Gaussian Processes for Machine Learning. MIT Press.
 Kennedy, M. C. & O'Hagan, A. (2001). Bayesian calibration of computer models. JRSS B 63, 425.
+Vernon, I., Goldstein, M. & Bower, R. G. (2010). Galaxy formation: a Bayesian uncertainty
+analysis. Bayesian Analysis 5, 619.
+Andrianakis, I. et al. (2015). Bayesian history matching of complex infectious disease models
+using emulation. PLoS Comput. Biol. 11, e1003968.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy.linalg import cho_solve
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+from sklearn.gaussian_process.kernels import (ConstantKernel, DotProduct, Matern,
+                                              WhiteKernel)
+
+#: two-sided 95 % normal quantile
+Z95 = 1.959964
+#: noise groups with replicates needed to carry the chaos as a known per-run noise (fewer: the
+#: nugget learns it instead)
+_MIN_REPLICATE_GROUPS = 1
+#: pseudo-degrees of freedom of the pooled relative chaos variance in each group's estimate
+SHRINK_DOF = 4.0
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Emulated outputs at n inputs, each array of shape (n, n_outputs), in output units.
+
+    mean : the twin's mean response
+    latent_sd : the emulator's uncertainty about that mean (more runs would shrink it)
+    chaos_sd : the scatter of one new twin run about its mean (the twin's chaos)
+    """
+    mean: np.ndarray
+    latent_sd: np.ndarray
+    chaos_sd: np.ndarray
+
+    def sd(self, n_runs=1):
+        """sd of the mean of ``n_runs`` new twin runs (np.inf: the mean response itself)."""
+        chaos = 0.0 if np.isinf(n_runs) else self.chaos_sd ** 2 / float(n_runs)
+        return np.sqrt(self.latent_sd ** 2 + chaos)
 
 
 class GPEmulator:
-    """GP emulator with inputs scaled to the unit cube.
+    """GP emulator with inputs scaled to the centred unit cube.
 
     Parameters
     ----------
     bounds : dict name -> (lower, upper) - input names (their order is the column order of
         array inputs) and ranges used for scaling [their own units]
     outputs : sequence of str - output names, e.g. ("v_mean_m_s", "f_col_hz")
-    nu : float - Matern smoothness (1.5 or 2.5)
+    nu : float - Matern smoothness (0.5, 1.5 or 2.5)
+    trend : bool - add the linear (Bayesian regression) part to the kernel
+    log_outputs : sequence of str - outputs modelled as log(value) (must be > 0)
+    noise_keys : sequence of str or None - input columns that set the chaos' noise group (see
+        the module docstring); None: the nugget learns one chaos level per output
     n_restarts_optimizer : int - restarts of the hyperparameter optimiser
     random_state : int or None
 
@@ -46,14 +110,18 @@ class GPEmulator:
     ----------
     gps_ : list of fitted GaussianProcessRegressor, one per output
     n_train_ : int - number of training runs
+    noise_table_ : DataFrame or None - pooled replicate sd per noise group and output
     loo_ : DataFrame - leave-one-out report (see :meth:`loo_report`)
     """
 
-    def __init__(self, bounds, outputs=("v_mean_m_s", "f_col_hz"), nu=2.5,
-                 n_restarts_optimizer=2, random_state=None):
+    def __init__(self, bounds, outputs=("v_mean_m_s", "f_col_hz"), nu=2.5, trend=False,
+                 log_outputs=(), noise_keys=None, n_restarts_optimizer=2, random_state=None):
         self.bounds = bounds
         self.outputs = outputs
         self.nu = nu
+        self.trend = trend
+        self.log_outputs = log_outputs
+        self.noise_keys = noise_keys
         self.n_restarts_optimizer = n_restarts_optimizer
         self.random_state = random_state
 
@@ -62,7 +130,7 @@ class GPEmulator:
     def inputs(self):
         return list(self.bounds)
 
-    def _scale(self, X):
+    def _raw_inputs(self, X):
         if isinstance(X, pd.DataFrame):
             missing = [c for c in self.inputs if c not in X.columns]
             if missing:
@@ -74,11 +142,18 @@ class GPEmulator:
                              % (len(self.inputs), ", ".join(self.inputs), X.shape[1]))
         if not np.isfinite(X).all():
             raise ValueError("emulator inputs hold NaN or inf")
+        return X
+
+    def _scale(self, X):
+        X = self._raw_inputs(X)
         lo = np.array([self.bounds[k][0] for k in self.inputs], float)
         hi = np.array([self.bounds[k][1] for k in self.inputs], float)
         if np.any(hi <= lo):
             raise ValueError("emulator bounds must have upper > lower: %s" % self.bounds)
-        return (X - lo) / (hi - lo)
+        return (X - lo) / (hi - lo) - 0.5
+
+    def _is_log(self):
+        return np.array([o in tuple(self.log_outputs) for o in self.outputs])
 
     def _targets(self, Y):
         if isinstance(Y, pd.DataFrame):
@@ -96,7 +171,79 @@ class GPEmulator:
             bad = np.argwhere(~np.isfinite(Y))[0]
             raise ValueError("emulator training output %s is not finite in row %d"
                              % (self.outputs[bad[1]], bad[0]))
+        L = self._is_log()
+        if L.any():
+            if np.any(Y[:, L] <= 0):
+                bad = [o for o, l in zip(self.outputs, L) if l]
+                raise ValueError("emulator log output(s) %s must be > 0" % ", ".join(bad))
+            Y = Y.copy()
+            Y[:, L] = np.log(Y[:, L])
         return Y
+
+    def _kernel(self, d):
+        k = (ConstantKernel(1.0, (1e-3, 1e3))
+             * Matern(length_scale=np.full(d, 0.5), length_scale_bounds=(1e-2, 1e2), nu=self.nu))
+        if self.trend:
+            k = k + ConstantKernel(1.0, (1e-4, 1e3)) * DotProduct(1.0, (1e-3, 1e2))
+        nug_lo = 1e-8 if self.noise_keys is None else 1e-10
+        return k + WhiteKernel(1e-2, (nug_lo, 1.0))
+
+    # ----------------------------------------------------------------------- chaos' noise
+    def _groups(self, X):
+        """Noise-group key per row (a tuple of the noise_keys' values)."""
+        idx = [self.inputs.index(k) for k in self.noise_keys]
+        return [tuple(np.round(r, 12)) for r in X[:, idx]]
+
+    def _replicate_noise(self, X, Y):
+        """Pooled replicate variance per noise group and output: (table, {group: var row})."""
+        keys = [tuple(np.round(r, 12)) for r in X]
+        groups = self._groups(X)
+        df = pd.DataFrame(Y, columns=list(self.outputs))
+        df["_x"], df["_g"] = keys, groups
+        ss, dof = {}, {}
+        for (x, g), part in df.groupby(["_x", "_g"], sort=False):
+            if len(part) < 2:
+                continue
+            vals = part[list(self.outputs)].to_numpy(float)
+            ss[g] = ss.get(g, 0.0) + ((vals - vals.mean(0)) ** 2).sum(0)
+            dof[g] = dof.get(g, 0) + len(part) - 1
+        if len(ss) < _MIN_REPLICATE_GROUPS:
+            return None, None
+        raw = {g: ss[g] / dof[g] for g in ss}
+        # relative to the squared mean level of the group's outputs (absolute for log outputs,
+        # which are relative already): the pooled relative variance, and each group's own
+        # shrunk towards it with SHRINK_DOF pseudo-degrees of freedom (empirical Bayes: 2 dof
+        # of one group's 3 seeds leave its variance uncertain by a factor 2); a group without
+        # replicates takes the pooled one
+        level = {g: np.maximum(np.abs(part[list(self.outputs)].to_numpy(float).mean(0)), 1e-30)
+                 for g, part in df.groupby("_g", sort=False)}
+        L = self._is_log()
+
+        def rel(g, v):
+            return np.where(L, v, v / level[g] ** 2)
+
+        def absolute(g, r):
+            return np.where(L, r, r * level[g] ** 2)
+
+        pooled = (sum(rel(g, raw[g]) * dof[g] for g in raw)
+                  / sum(dof.values()))
+        var = {}
+        for g in level:
+            d = dof.get(g, 0)
+            r = (rel(g, raw[g]) * d if d else 0.0) + pooled * SHRINK_DOF
+            var[g] = absolute(g, r / (d + SHRINK_DOF))
+            dof[g] = d
+        rows = [{**dict(zip(self.noise_keys, g)), "replicate_dof": dof[g],
+                 **{o + "_sd": float(np.sqrt(v)) for o, v in zip(self.outputs, var[g])}}
+                for g in var]
+        return pd.DataFrame(rows), var
+
+    def _chaos_var(self, X):
+        """(n, n_outputs) replicate-estimated chaos variance of one run at raw inputs X (model
+        units: log for log outputs); a noise group never seen takes the median over the seen
+        groups."""
+        med = np.median(np.array(list(self.chaos_var_.values())), axis=0)
+        return np.array([self.chaos_var_.get(g, med) for g in self._groups(X)])
 
     # -------------------------------------------------------------------------------- fit
     def fit(self, X, Y):
@@ -111,45 +258,85 @@ class GPEmulator:
         -------
         self
         """
-        Xs = self._scale(X)
+        Xr = self._raw_inputs(X)
+        Xs = self._scale(Xr)
         Y = self._targets(Y)
         if len(Xs) != len(Y):
             raise ValueError("X has %d rows, Y has %d" % (len(Xs), len(Y)))
         if len(Xs) < len(self.inputs) + 2:
             raise ValueError("need at least %d training runs, got %d"
                              % (len(self.inputs) + 2, len(Xs)))
-        d = Xs.shape[1]
+        self.chaos_var_, self.noise_table_ = None, None
+        if self.noise_keys is not None:
+            missing = [k for k in self.noise_keys if k not in self.inputs]
+            if missing:
+                raise ValueError("noise key(s) %s are not emulator inputs" % ", ".join(missing))
+            self.noise_table_, self.chaos_var_ = self._replicate_noise(Xr, Y)
+        alpha = None if self.chaos_var_ is None else self._chaos_var(Xr)
         self.gps_ = []
         for j in range(Y.shape[1]):
-            kernel = (ConstantKernel(1.0, (1e-3, 1e3))
-                      * Matern(length_scale=np.full(d, 0.5), length_scale_bounds=(1e-2, 1e2),
-                               nu=self.nu)
-                      + WhiteKernel(1e-2, (1e-8, 1.0)))
-            gp = GaussianProcessRegressor(kernel=kernel, normalize_y=True,
+            y_sd = float(np.std(Y[:, j])) or 1.0
+            a = 1e-10 if alpha is None else np.maximum(alpha[:, j], 1e-12) / y_sd ** 2
+            gp = GaussianProcessRegressor(kernel=self._kernel(Xs.shape[1]), alpha=a,
+                                          normalize_y=True,
                                           n_restarts_optimizer=self.n_restarts_optimizer,
                                           random_state=self.random_state)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ConvergenceWarning)
                 gp.fit(Xs, Y[:, j])
             self.gps_.append(gp)
+        self.nugget_var_ = np.array([gp.kernel_.k2.noise_level * gp._y_train_std ** 2
+                                     for gp in self.gps_])
         self.n_train_ = len(Xs)
+        self._train_alpha = alpha
         self.loo_ = self.loo_report()
         return self
 
     # ---------------------------------------------------------------------------- predict
     def noise_sd(self):
-        """Fitted nugget sd per output (the twin's replicate scatter) [output units]."""
-        return np.array([np.sqrt(gp.kernel_.k2.noise_level) * gp._y_train_std
-                         for gp in self.gps_])
+        """One run's chaos sd per output, pooled over the noise groups [model units]."""
+        if self.chaos_var_ is None:
+            return np.sqrt(self.nugget_var_)
+        med = np.median(np.array(list(self.chaos_var_.values())), axis=0)
+        return np.sqrt(med + self.nugget_var_)
+
+    def _predict_model_units(self, X):
+        Xr = self._raw_inputs(X)
+        Xs = self._scale(Xr)
+        mean = np.empty((len(Xs), len(self.gps_)))
+        var = np.empty_like(mean)
+        for j, gp in enumerate(self.gps_):
+            m, s = gp.predict(Xs, return_std=True)
+            mean[:, j], var[:, j] = m, s ** 2
+        # the nugget is scatter of the runs about the smooth response: the twin's chaos beyond
+        # what the replicates estimated (a 3-seed variance is uncertain by a factor 2), not
+        # the emulator's uncertainty about the mean - that shrinks as runs come in
+        nugget = self.nugget_var_[None, :]
+        var = np.maximum(var - nugget, 0.0)
+        chaos = nugget if self.chaos_var_ is None else self._chaos_var(Xr) + nugget
+        return mean, var, np.broadcast_to(chaos, var.shape).copy()
+
+    def predict_parts(self, X) -> Prediction:
+        """The twin's mean response, the emulator's sd of it and one run's chaos sd at X, in
+        output units (a log output's sds are those of its value, to first order)."""
+        mean, var, chaos = self._predict_model_units(X)
+        L = self._is_log()
+        lat, ch = np.sqrt(var), np.sqrt(chaos)
+        if L.any():
+            mean = mean.copy()
+            mean[:, L] = np.exp(mean[:, L])
+            lat[:, L] = lat[:, L] * mean[:, L]
+            ch[:, L] = ch[:, L] * mean[:, L]
+        return Prediction(mean, lat, ch)
 
     def predict(self, X, return_std=False, include_noise=True):
-        """Emulated outputs.
+        """Emulated outputs (the mean only, without ``return_std``: no variance computed).
 
         Parameters
         ----------
         X : DataFrame or ndarray, shape (n, n_inputs)
         return_std : bool
-        include_noise : bool - True: sd of one new twin run (latent + replicate nugget);
+        include_noise : bool - True: sd of one new twin run (latent + chaos);
             False: sd of the twin's mean response (latent only)
 
         Returns
@@ -157,75 +344,90 @@ class GPEmulator:
         mean : ndarray, shape (n, n_outputs)
         std : ndarray, shape (n, n_outputs) - only with return_std
         """
-        Xs = self._scale(X)
-        mean = np.empty((len(Xs), len(self.gps_)))
-        std = np.empty_like(mean)
-        for j, gp in enumerate(self.gps_):
-            if return_std:
-                m, s = gp.predict(Xs, return_std=True)
-                if not include_noise:
-                    s = np.sqrt(np.maximum(s ** 2 - self.noise_sd()[j] ** 2, 0.0))
-                std[:, j] = s
-            else:
-                m = gp.predict(Xs)
-            mean[:, j] = m
-        return (mean, std) if return_std else mean
+        if not return_std:
+            Xs = self._scale(X)
+            mean = np.column_stack([gp.predict(Xs) for gp in self.gps_])
+            L = self._is_log()
+            if L.any():
+                mean[:, L] = np.exp(mean[:, L])
+            return mean
+        p = self.predict_parts(X)
+        return p.mean, p.sd(1 if include_noise else np.inf)
 
     # ------------------------------------------------------------------------- validation
-    def loo_predictions(self):
-        """Closed-form leave-one-out mean and sd at the training runs.
+    def leave_out(self, groups=None):
+        """Closed-form leave-out predictions at the training runs (hyperparameters held).
+
+        Parameters
+        ----------
+        groups : array-like of length n_train, optional - runs with one label are left out
+            together (block leave-out); None: one run at a time
 
         Returns
         -------
-        y : ndarray, shape (n, n_outputs) - training outputs
-        mean, std : ndarray, shape (n, n_outputs) - LOO predictive mean and sd (of a new run)
+        y, mean, sd : ndarray, shape (n, n_outputs) - training outputs and the leave-out
+            predictive mean and sd of a new run there, in model units (log for log outputs)
         """
+        labels = np.arange(self.n_train_) if groups is None else np.asarray(groups)
+        if len(labels) != self.n_train_:
+            raise ValueError("groups has %d labels for %d training runs"
+                             % (len(labels), self.n_train_))
+        blocks = [np.flatnonzero(labels == g) for g in pd.unique(labels)]
         ys, ms, ss = [], [], []
         for gp in self.gps_:
             n = len(gp.alpha_)
             kinv = cho_solve((gp.L_, True), np.eye(n))
-            dinv = np.diag(kinv)
-            yn = gp.y_train_
-            resid = gp.alpha_ / dinv                 # y_i - mu_{-i}, normalised units
-            sd = np.sqrt(1.0 / dinv)
             scale, shift = gp._y_train_std, gp._y_train_mean
-            y = yn * scale + shift
+            y = gp.y_train_ * scale + shift
+            mean, sd = np.empty(n), np.empty(n)
+            for b in blocks:
+                cov = np.linalg.inv(kinv[np.ix_(b, b)])     # covariance of y_b given the rest
+                mean[b] = gp.y_train_[b] - cov @ gp.alpha_[b]
+                sd[b] = np.sqrt(np.diag(cov))
             ys.append(y)
-            ms.append(y - resid * scale)
+            ms.append(mean * scale + shift)
             ss.append(sd * scale)
         return np.column_stack(ys), np.column_stack(ms), np.column_stack(ss)
 
-    def loo_report(self):
-        """Leave-one-out error per output.
+    def loo_predictions(self):
+        """Closed-form leave-one-out mean and sd at the training runs (see :meth:`leave_out`)."""
+        return self.leave_out(None)
+
+    def loo_report(self, groups=None):
+        """Leave-out error per output.
 
         Returns
         -------
-        DataFrame indexed by output: n, rmse, rel_rmse_pct (RMSE / mean |y|), max_abs_err,
-        noise_sd (fitted nugget), coverage95 (fraction of LOO 95 % intervals holding the run),
-        mean_abs_z.
+        DataFrame indexed by output: n, rmse, rel_rmse_pct (RMSE / mean |y|; a log output's
+        RMSE is of its log, x100 a relative error in %), max_abs_err, noise_sd (one run's
+        chaos), coverage95 (fraction of leave-out 95 % intervals of a new run holding the run),
+        mean_abs_z, mean_z2 (1 when the stated sd is right).
         """
-        y, m, s = self.loo_predictions()
-        return _error_table(self.outputs, y, m, s, self.noise_sd())
+        y, m, s = self.leave_out(groups)
+        return _error_table(self.outputs, y, m, s, self.noise_sd(), self._is_log())
 
     def score(self, X, Y):
-        """Held-out error table (same columns as :meth:`loo_report`)."""
+        """Held-out error table of new runs (same columns as :meth:`loo_report`)."""
         Y = self._targets(Y)
-        m, s = self.predict(X, return_std=True)
-        return _error_table(self.outputs, Y, m, s, self.noise_sd())
+        mean, var, chaos = self._predict_model_units(X)
+        return _error_table(self.outputs, Y, mean, np.sqrt(var + chaos), self.noise_sd(),
+                            self._is_log())
 
 
-def _error_table(outputs, y, m, s, noise):
+def _error_table(outputs, y, m, s, noise, is_log):
     err = y - m
     z = err / s
     rows = []
     for j, name in enumerate(outputs):
         rmse = float(np.sqrt(np.mean(err[:, j] ** 2)))
+        ref = 1.0 if is_log[j] else float(np.mean(np.abs(y[:, j])))
         rows.append({"output": name, "n": len(y), "rmse": rmse,
-                     "rel_rmse_pct": 100.0 * rmse / float(np.mean(np.abs(y[:, j]))),
+                     "rel_rmse_pct": 100.0 * rmse / ref,
                      "max_abs_err": float(np.max(np.abs(err[:, j]))),
                      "noise_sd": float(noise[j]),
-                     "coverage95": float(np.mean(np.abs(z[:, j]) <= 1.959964)),
-                     "mean_abs_z": float(np.mean(np.abs(z[:, j])))})
+                     "coverage95": float(np.mean(np.abs(z[:, j]) <= Z95)),
+                     "mean_abs_z": float(np.mean(np.abs(z[:, j]))),
+                     "mean_z2": float(np.mean(z[:, j] ** 2))})
     return pd.DataFrame(rows).set_index("output")
 
 
@@ -241,6 +443,10 @@ def main(argv=None):
     p.add_argument("--inputs", nargs="+", required=True, help="input columns")
     p.add_argument("--outputs", nargs="+", default=["v_mean_m_s", "f_col_hz"],
                    help="output columns (default: %(default)s)")
+    p.add_argument("--noise-keys", nargs="+", default=None,
+                   help="input columns that set the chaos' noise group (replicates pooled "
+                        "per group); default: one learned nugget per output")
+    p.add_argument("--trend", action="store_true", help="add the linear regression part")
     p.add_argument("--seed", type=int, default=0,
                    help="random seed of the hyperparameter optimiser's restarts [-] "
                         "(default %(default)s)")
@@ -252,7 +458,8 @@ def main(argv=None):
                 raise ValueError("%s has no column %s" % (args.table, c))
         df = df.dropna(subset=args.outputs)
         bounds = {c: (float(df[c].min()), float(df[c].max())) for c in args.inputs}
-        em = GPEmulator(bounds, outputs=args.outputs, random_state=args.seed)
+        em = GPEmulator(bounds, outputs=args.outputs, random_state=args.seed, trend=args.trend,
+                        noise_keys=args.noise_keys)
         em.fit(df, df)
     except (OSError, ValueError) as exc:
         print("analysis.emulator: error: %s" % exc, file=sys.stderr)

@@ -154,6 +154,14 @@ class _Wrapped:
         return self.model.predict(th, eff)
 
     def model_se(self):
+        if getattr(self.model, "state_dependent_se", False):
+            # the model's own uncertainty where each fit asks (an emulator's): a callable
+            def se_at(theta, effects=None):
+                th = {k: v for k, v in theta.items() if k not in self.added}
+                eff = dict(effects or {})
+                eff.update({k: theta.get(k, s) for k, s in self.added.items()})
+                return self.model.model_se(th, eff)
+            return se_at
         se = self.model.model_se(self.theta)
         if not self.added:
             return se
@@ -370,7 +378,8 @@ def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observa
     for _ in range(int(n_draws)):
         o = obs.copy()
         o["value"] = mu + sig * rng.standard_normal(len(mu))
-        d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(), crn_correlation=0.0,
+        d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(),
+                     crn_correlation=getattr(w.model, "crn_correlation", 0.0),
                      conditions=conditions, alpha=alpha, noise_observables=noise_observables,
                      effect_se=w.effect_se, structure=False)
         t = d.table[d.table["identifiable"]]
@@ -414,7 +423,9 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         if not effs:
             break
         diag = diagnose(w.predict, obs, _base_params(model, theta, added), effs,
-                        model_se=w.model_se(), crn_correlation=0.0, conditions=conditions,
+                        model_se=w.model_se(),
+                        crn_correlation=getattr(model, "crn_correlation", 0.0),
+                        conditions=conditions,
                         alpha=alpha, noise_observables=noise_observables,
                         effect_se=w.effect_se)
         t = diag.table.copy()

@@ -1,0 +1,412 @@
+"""The one model of the twin at a dataset's conditions: emulators fitted to every twin run made
+for it, built in waves of one design.
+
+:class:`EmulatedTwin` holds one GP emulator (:class:`analysis.emulator.GPEmulator`) per
+observable the loop compares - the speed in the dataset's frame, f_col and, where the dataset's
+tracks carry the jar, the impact observables of :mod:`analysis.flights` - over the base
+parameters, every candidate effect's strength JOINTLY (an effect's response at another
+restitution is learned, not assumed equal to one anchor's) and the conditions' frequency and
+ball. It is fitted to every twin run made for the dataset: design points, replicates and the
+confirmation runs at a fitted point. The yields follow from the speed and the rate through the
+powder line (or a kinetics effect) exactly, as in the paper.
+
+It meets :class:`TwinModelContract`, the shape the loop's calibration and diagnosis use
+(``predict(theta, effects)`` a Series by (condition_id, observable); ``model_se`` the
+emulator's own sd of the twin's mean there; ``resolution_se(effects)`` what switching effects
+on adds to it; ``flight_run_sd`` one run's chaos of the impact observables, which a measured
+track - one realisation - carries).
+
+:func:`build_in_waves` makes the runs: wave 0 a space-filling design with one effect on in half
+its points, the reference point with replicates (the twin's chaos per condition); then waves
+whose points go where the data's plausible region lies (:func:`analysis.history_matching.
+next_wave`), with no effect and with each candidate effect free in turn.
+"""
+from __future__ import annotations
+
+import math
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import pandas as pd
+
+from analysis.emulator import GPEmulator, Prediction
+from analysis.history_matching import (DesignSpace, design_runs, effect_input,
+                                       initial_design, next_wave)
+
+#: observables emulated in log space (relative changes that multiply)
+LOG_OBSERVABLES = ("vy_rms_m_s",)
+#: the conditions' inputs of every emulator
+CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
+#: the speed column of a run in each velocity frame
+SPEED_COLUMN = {"lab": "v_mean_m_s", "jar": "v_mean_jar_m_s"}
+#: steel density for the ball mass in E_kin [kg/m^3]
+STEEL_DENSITY_KG_M3 = 7800.0
+
+
+@runtime_checkable
+class TwinModelContract(Protocol):
+    """What the loop's calibration and diagnosis need of a model of the twin."""
+
+    theta_ref: dict
+    flight_conditions: list
+
+    def base_params(self) -> list: ...
+
+    def effects(self) -> list: ...
+
+    def predict(self, theta: dict, effects: dict | None = None) -> pd.Series: ...
+
+    def model_se(self, theta: dict | None = None) -> pd.Series: ...
+
+    def resolution_se(self, effects: dict) -> pd.Series: ...
+
+    def flight_run_sd(self) -> pd.Series: ...
+
+
+class EmulatedTwin:
+    """Emulators of the twin at a dataset's conditions.
+
+    Parameters
+    ----------
+    conditions : DataFrame - condition_id, frequency_hz, ball_diameter_mm [, amplitude_mm]
+    space : DesignSpace - base parameters and candidate effects
+    velocity_frame : 'lab' or 'jar' - the frame of the measured speed
+    flight_conditions : condition ids whose observations hold the impact observables
+    yield_times_min : {condition_id: [t, ...]} - yield times of the dataset
+    theta_ref : dict - the reference base parameters (the design's centre; the loop's start)
+    seed : int - the hyperparameter optimiser's seed
+
+    Attributes (after :meth:`fit`)
+    ----------
+    emulators_ : {observable: GPEmulator}
+    runs_ : DataFrame - the training runs
+    keys : MultiIndex (condition_id, observable) of :meth:`predict`
+    """
+
+    def __init__(self, conditions, space: DesignSpace, *, velocity_frame="lab",
+                 flight_conditions=(), yield_times_min=None, theta_ref=None, seed=0):
+        self.conditions = conditions.reset_index(drop=True)
+        self.space = space
+        if velocity_frame not in SPEED_COLUMN:
+            raise ValueError("velocity_frame must be 'lab' or 'jar', got %r" % velocity_frame)
+        self.velocity_frame = velocity_frame
+        cids = list(self.conditions["condition_id"])
+        self.flight_conditions = [c for c in cids if c in set(flight_conditions or ())]
+        self.yield_times_min = {k: list(v) for k, v in (yield_times_min or {}).items()}
+        self.theta_ref = dict(theta_ref or {p.name: float(np.mean(p.prior))
+                                            for p in space.base})
+        self.base_names = tuple(space.base_names)
+        self.held = {}
+        self.seed = seed
+        #: the emulator's mean is a smooth function: two predictions share their noise
+        #: (diagnose's finite differences carry none)
+        self.crn_correlation = 1.0
+        #: model_se(theta, effects) is the emulator's sd where a fit asks: the loop's fits carry
+        #: it in their likelihood
+        self.state_dependent_se = True
+        from analysis.flights import FLIGHT_OBSERVABLES
+        self.flight_obs = tuple(FLIGHT_OBSERVABLES) if self.flight_conditions else ()
+        d_m = self.conditions["ball_diameter_mm"].to_numpy(float) * 1e-3
+        self.mass_kg = STEEL_DENSITY_KG_M3 * math.pi / 6.0 * d_m ** 3
+        self._X_cond = pd.DataFrame({"frequency_hz": self.conditions["frequency_hz"]
+                                     .to_numpy(float), "ball_diameter_m": d_m})
+        keys = []
+        for cid in cids:
+            keys += [(cid, "v_mean_m_s"), (cid, "f_col_hz")]
+            keys += [(cid, "yield_pct@%gmin" % t) for t in self.yield_times_min.get(cid, [])]
+            if cid in self.flight_conditions:
+                keys += [(cid, k) for k in self.flight_obs]
+        self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
+
+    # ------------------------------------------------------------------------ fitting
+    @property
+    def observables(self):
+        """Run columns emulated: the frame's speed, f_col, the impact observables."""
+        return (SPEED_COLUMN[self.velocity_frame], "f_col_hz") + self.flight_obs
+
+    def bounds(self):
+        b = self.space.bounds()
+        for c in CONDITION_INPUTS:
+            lo, hi = float(self._X_cond[c].min()), float(self._X_cond[c].max())
+            pad = max(0.05 * (hi - lo), 0.02 * abs(lo))
+            b[c] = (lo - pad, hi + pad)
+        return b
+
+    def inputs_of(self, runs: pd.DataFrame) -> pd.DataFrame:
+        """Emulator inputs of training runs: the base parameters as run (read from each run's
+        config, so a stated stroke is the one run), the effect strengths, the condition."""
+        X = pd.DataFrame({n: runs[n].to_numpy(float) for n in self.space.effect_names})
+        for n in self.space.base_names + list(CONDITION_INPUTS):
+            X[n] = [float(c[n]) for c in runs["config"]]
+        return X[list(self.bounds())]
+
+    def fit(self, runs: pd.DataFrame):
+        """Fit one emulator per observable to every run where it is finite (a run in another
+        motion mode has no impact observables).
+
+        runs : DataFrame with columns config (the run config), the design's effect inputs
+            (``effect:<name>``), and the observables
+        """
+        X = self.inputs_of(runs)
+        b = self.bounds()
+        self.emulators_ = {}
+        for o in self.observables:
+            y = runs[o].to_numpy(float) if o in runs else np.full(len(runs), np.nan)
+            ok = np.isfinite(y)
+            if ok.sum() < len(b) + 2:
+                raise ValueError("the emulator of %s needs at least %d runs where it is "
+                                 "finite, has %d" % (o, len(b) + 2, int(ok.sum())))
+            em = GPEmulator(b, outputs=(o,), nu=2.5, trend=True,
+                            log_outputs=tuple(x for x in LOG_OBSERVABLES if x == o),
+                            noise_keys=CONDITION_INPUTS, n_restarts_optimizer=1,
+                            random_state=self.seed)
+            self.emulators_[o] = em.fit(X[ok], pd.DataFrame({o: y[ok]}))
+        self.runs_ = runs.reset_index(drop=True)
+        return self
+
+    # ------------------------------------------------------------------ predictions
+    def _inputs(self, points: pd.DataFrame) -> pd.DataFrame:
+        """Every point at every condition (points outer): emulator input rows."""
+        n_c = len(self._X_cond)
+        rows = {n: np.repeat(points[n].to_numpy(float), n_c) for n in self.space.names}
+        for c in CONDITION_INPUTS:
+            rows[c] = np.tile(self._X_cond[c].to_numpy(float), len(points))
+        stated = self.conditions.get("amplitude_mm")
+        if stated is not None and "amplitude_m" in rows:
+            a = np.tile(stated.to_numpy(float) * 1e-3, len(points))
+            rows["amplitude_m"] = np.where(np.isfinite(a), a, rows["amplitude_m"])
+        return pd.DataFrame(rows)[list(self.bounds())]
+
+    def dem_parts(self, points: pd.DataFrame, sd=True) -> dict:
+        """{observable: Prediction of shape (n_points, n_conditions)} (``sd=False``: the means
+        only, the sds zero - what a fit's many calls need)."""
+        X = self._inputs(points)
+        n_p, n_c = len(points), len(self._X_cond)
+        out = {}
+        for o, em in self.emulators_.items():
+            if not sd:
+                m = em.predict(X)
+                z = np.zeros_like(m)
+                out[o] = Prediction(m[:, 0].reshape(n_p, n_c), z[:, 0].reshape(n_p, n_c),
+                                    z[:, 0].reshape(n_p, n_c))
+                continue
+            p = em.predict_parts(X)
+            out[o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
+                                  for a in (p.mean, p.latent_sd, p.chaos_sd)))
+        return out
+
+    def point(self, theta, effects=None) -> pd.DataFrame:
+        """One design point from base parameters (``theta``, the rest theta_ref's) and effect
+        strengths (only DEM effects of the space; others ignored)."""
+        row = {n: float(theta.get(n, self.theta_ref[n])) for n in self.space.base_names}
+        row.update({n: 0.0 for n in self.space.effect_names})
+        for k, s in (effects or {}).items():
+            if effect_input(k) in row:
+                row[effect_input(k)] = float(s)
+        return pd.DataFrame([row])
+
+    def _assemble(self, parts, theta, effects, which):
+        """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
+        yields (and their sds, propagated through E_tot) from the speed and rate."""
+        v_col = SPEED_COLUMN[self.velocity_frame]
+        v_m = parts[v_col].mean[0]
+        f_m = parts["f_col_hz"].mean[0]
+        v_s = getattr(parts[v_col], which)[0]
+        f_s = getattr(parts["f_col_hz"], which)[0]
+        eff_obj, slope, intercept = self._kinetics(theta, effects)
+        out = []
+        for i, cid in enumerate(self.conditions["condition_id"]):
+            out += [v_m[i] if which == "mean" else v_s[i],
+                    f_m[i] if which == "mean" else f_s[i]]
+            times = self.yield_times_min.get(cid, [])
+            if times:
+                t_s = np.asarray(times, float) * 60.0
+                e_kin = 0.5 * self.mass_kg[i] * v_m[i] ** 2
+                if which == "mean":
+                    x = (slope * e_kin * f_m[i] * t_s / 1000.0 + intercept if eff_obj is None
+                         else eff_obj.yield_pct(e_kin, f_m[i], t_s, slope, intercept))
+                else:
+                    m = self.mass_kg[i]
+                    x = abs(slope) * t_s / 1000.0 * math.hypot(
+                        m * v_m[i] * f_m[i] * v_s[i], 0.5 * m * v_m[i] ** 2 * f_s[i])
+                out += list(np.asarray(x, float))
+            if cid in self.flight_conditions:
+                out += [getattr(parts[o], which)[0][i] for o in self.flight_obs]
+        return pd.Series(out, index=self.keys, dtype=float)
+
+    def _kinetics(self, theta, effects):
+        from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ
+        from analysis.twin_model import candidates
+        kin = candidates("kinetics")
+        on = [k for k, s in (effects or {}).items() if k in kin and s]
+        if len(on) > 1:
+            raise ValueError("kinetics effects do not compose: %s" % on)
+        eff_obj = None
+        if on:
+            from effects import load_effects
+            eff_obj = load_effects(kin[on[0]].spec(effects[on[0]]), side="kinetics")[0]
+        return (eff_obj, float(theta.get("slope_pct_per_kj", PAPER_SLOPE_PCT_PER_KJ)),
+                float(theta.get("intercept_pct", 0.0)))
+
+    def _check_effects(self, effects):
+        from analysis.twin_model import candidates
+        kin = candidates("kinetics")
+        unknown = [k for k in (effects or {}) if effect_input(k) not in self.space.effect_names
+                   and k not in kin]
+        if unknown:
+            raise ValueError("unknown effect(s) %s" % unknown)
+
+    def predict(self, theta, effects=None) -> pd.Series:
+        """The twin's mean response by (condition_id, observable)."""
+        self._check_effects(effects)
+        parts = self.dem_parts(self.point(theta, effects), sd=False)
+        return self._assemble(parts, theta, effects, "mean")
+
+    def model_se(self, theta=None, effects=None) -> pd.Series:
+        """The emulator's sd of the twin's mean response at ``theta`` (default theta_ref)."""
+        theta = dict(theta or self.theta_ref)
+        parts = self.dem_parts(self.point(theta, effects))
+        return self._assemble(parts, theta, effects, "latent_sd")
+
+    def resolution_se(self, effects) -> pd.Series:
+        """Zero: the emulator's sd with effects on is part of :meth:`model_se` at the point
+        asked (``state_dependent_se``), not a separate term."""
+        return pd.Series(0.0, index=self.keys)
+
+    def chaos_sd(self, theta=None) -> pd.Series:
+        """One twin run's scatter about its mean at ``theta`` (default theta_ref)."""
+        theta = dict(theta or self.theta_ref)
+        parts = self.dem_parts(self.point(theta))
+        return self._assemble(parts, theta, None, "chaos_sd")
+
+    def flight_run_sd(self) -> pd.Series:
+        """One run's chaos of the impact observables per (condition, observable)."""
+        sd = self.chaos_sd()
+        keep = [k for k in sd.index if k[1] in self.flight_obs]
+        return sd.loc[keep]
+
+    # ------------------------------------------------------------- loop's parameters
+    @property
+    def has_yields(self):
+        return any(self.yield_times_min.values())
+
+    def base_params(self):
+        """diagnose BaseParameters: the design's base parameters over their priors (starting
+        at theta_ref) and, with yields, the powder line's slope and intercept."""
+        from analysis import kinetics
+        from analysis.diagnose import BaseParameter
+        out = [BaseParameter(p.name, float(np.clip(self.theta_ref[p.name], *p.prior)),
+                             *map(float, p.prior)) for p in self.space.base]
+        if self.has_yields:
+            out += [BaseParameter("slope_pct_per_kj", kinetics.PAPER_SLOPE_PCT_PER_KJ, 1.0,
+                                  30.0),
+                    BaseParameter("intercept_pct", kinetics.PAPER_INTERCEPT_PCT, -20.0, 20.0)]
+        return out
+
+    def effects(self):
+        """diagnose Effects: the design's DEM candidates over [0, s_max] and, with yields, the
+        kinetics candidates."""
+        from analysis.diagnose import Effect
+        from analysis.twin_model import candidates
+        cands = list(self.space.effects)
+        if self.has_yields:
+            cands += list(candidates("kinetics").values())
+        return [Effect(c.name, 0.0, float(c.s_max), null=0.0, kind=c.kind,
+                       description="strength = %s" % c.strength_label) for c in cands]
+
+    def prior_observations(self) -> pd.DataFrame:
+        """No pseudo-observations: the priors bound the design, the data pin what they can."""
+        return pd.DataFrame(columns=["condition_id", "observable", "value", "sd"])
+
+
+# --------------------------------------------------------------------------- waves
+
+def observation_table(model: EmulatedTwin, observations: pd.DataFrame) -> pd.DataFrame:
+    """The observations the emulators predict (speed, f_col, impact observables: not yields),
+    with value and sd, in the order of :func:`stacked_prediction`'s columns."""
+    keys = [k for k in model.keys if not k[1].startswith("yield")]
+    obs = observations.set_index(["condition_id", "observable"])
+    missing = [k for k in keys if k not in obs.index]
+    if missing:
+        raise ValueError("observations lack %r" % (missing[0],))
+    return obs.loc[keys, ["value", "sd"]].reset_index()
+
+
+def stacked_prediction(model: EmulatedTwin, points: pd.DataFrame) -> Prediction:
+    """Prediction of shape (n_points, n_obs) at the observations of :func:`observation_table`."""
+    parts = model.dem_parts(points)
+    cids = list(model.conditions["condition_id"])
+    v_col = SPEED_COLUMN[model.velocity_frame]
+    cols = []
+    for k in model.keys:
+        if k[1].startswith("yield"):
+            continue
+        col = v_col if k[1] == "v_mean_m_s" else k[1]
+        cols.append((col, cids.index(k[0])))
+    return Prediction(*(np.column_stack([getattr(parts[o], a)[:, i] for o, i in cols])
+                        for a in ("mean", "latent_sd", "chaos_sd")))
+
+
+def wave_points(model: EmulatedTwin, observations, existing, n_points, seed, *,
+                obs_chaos_runs=1.0):
+    """The next wave: half its points where the data are plausible with no effect, the rest
+    split over the candidate effects (each free in turn). Returns (points, {free effect or
+    'none': fraction not ruled out})."""
+    space = model.space
+    obs = observation_table(model, observations)
+    groups = [None] + [c.name for c in space.effects]
+    share = [max(1, n_points // 2)] + [0] * len(space.effects)
+    rest = n_points - share[0]
+    for k in range(rest):
+        share[1 + k % len(space.effects)] += 1
+    new, fracs = [], {}
+    have = existing
+    for g, n in zip(groups, share):
+        if n <= 0:
+            continue
+        pts, frac = next_wave(space, lambda c: stacked_prediction(model, c), obs, have, n,
+                              seed=seed + len(new), effects=None if g is None else [g],
+                              obs_chaos_runs=obs_chaos_runs)
+        fracs[g or "none"] = frac
+        new.append(pts)
+        have = pd.concat([have, pts], ignore_index=True)
+    out = pd.concat(new, ignore_index=True)
+    start = int(existing["point"].max()) + 1 if len(existing) else 0
+    out.insert(0, "point", np.arange(start, start + len(out)))
+    return out, fracs
+
+
+def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_waves,
+                   per_wave, replicates=3, seed=0, base_config=None, log=print,
+                   obs_chaos_runs=1.0):
+    """Run wave 0 and ``n_waves`` refinement waves through ``simulate(runs) -> runs`` (adds the
+    observables to a table of configs, e.g. the twin through the sweep); fit ``model`` after
+    each. Returns (model, points, {wave: fractions not ruled out})."""
+    space = model.space
+    pts = initial_design(space, n_initial, seed)
+    ref = model.point(model.theta_ref)
+    ref.insert(0, "point", -1)
+    runs = pd.concat([design_runs(space, pts, model.conditions, seeds=(seed,),
+                                  base_config=base_config),
+                      design_runs(space, ref, model.conditions,
+                                  seeds=range(seed + 1000, seed + 1000 + replicates),
+                                  base_config=base_config)], ignore_index=True)
+    runs["wave"] = 0
+    log("wave 0: %d points + the reference point x %d seeds, %d runs"
+        % (len(pts), replicates, len(runs)))
+    runs = simulate(runs)
+    model.fit(runs)
+    history = {}
+    for w in range(1, n_waves + 1):
+        new, fracs = wave_points(model, observations, pts, per_wave, seed + 17 * w,
+                                 obs_chaos_runs=obs_chaos_runs)
+        history[w] = fracs
+        log("wave %d: %d points; not ruled out: %s" % (w, len(new), ", ".join(
+            "%s %.1f %%" % (k, 100 * v) for k, v in fracs.items())))
+        r = design_runs(space, new, model.conditions, seeds=(seed + w,),
+                        base_config=base_config)
+        r["wave"] = w
+        runs = pd.concat([runs, simulate(r)], ignore_index=True)
+        pts = pd.concat([pts, new], ignore_index=True)
+        model.fit(runs)
+    return model, pts, history

@@ -1,0 +1,274 @@
+"""Waves of one design over the twin's inputs: space-filling first, then where the data's
+plausible region lies and the emulator is unsure (history matching).
+
+The inputs are the base parameters (:data:`analysis.parameter_space.SPACE`, over their prior
+ranges) and the candidate effects' strengths (each over [0, s_max] of its catalog entry), at a
+dataset's conditions. A **design point** is one vector of these; it is run at every condition
+(one seed per condition by default, the same seed across conditions), so that every run of the
+twin made for a dataset is a training run of one emulator (:class:`analysis.emulator.
+GPEmulator` with the conditions' physics among its inputs).
+
+* :func:`initial_design` - wave 0: a Latin hypercube over the base parameters; a share of the
+  points also switches ONE candidate effect on at a strength drawn from its range (each effect
+  in turn), so that every effect's response is learned jointly with the base parameters - at
+  other restitutions, strokes and frictions than one anchor's;
+* :func:`implausibility` - Vernon, Goldstein & Bower (2010):
+  ``I = |z - E[f(x)]| / sqrt(Var_obs + Var_emulator + Var_chaos)`` per observation, where the
+  chaos term is the scatter of the twin about its mean that the observation carries (one twin
+  realisation of a blind dataset, or none for a measured mean whose sd already holds it);
+* :func:`not_ruled_out` - the points whose largest (or ``which``-th largest) implausibility over
+  the observations is below the cut-off (3, Pukelsheim's three-sigma rule);
+* :func:`next_wave` - the next design points: drawn from the not-ruled-out part of a large
+  candidate sample, spread by greedy maximin in the scaled inputs and weighted towards where
+  the emulator is least sure.
+
+References
+----------
+Vernon, I., Goldstein, M. & Bower, R. G. (2010). Galaxy formation: a Bayesian uncertainty
+analysis. Bayesian Analysis 5, 619.
+Andrianakis, I. et al. (2015). Bayesian history matching of complex infectious disease models
+using emulation. PLoS Comput. Biol. 11, e1003968.
+Pukelsheim, F. (1994). The three sigma rule. The American Statistician 48, 88.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.stats import qmc
+
+from analysis.parameter_space import SPACE
+
+#: implausibility cut-off (three-sigma rule, any unimodal distribution: >= 95 % inside)
+CUTOFF = 3.0
+#: share of wave-0 points that switch one candidate effect on
+EFFECT_SHARE = 0.5
+#: prefix of an effect strength's input name
+EFFECT_PREFIX = "effect:"
+
+
+def effect_input(name: str) -> str:
+    """The emulator input name of an effect's strength."""
+    return EFFECT_PREFIX + name
+
+
+@dataclass(frozen=True)
+class DesignSpace:
+    """The inputs a design moves: base parameters over their priors, effects over [0, s_max].
+
+    base : tuple of analysis.parameter_space.Parameter
+    effects : tuple of catalog candidates (analysis.twin_model.catalog.Candidate: name, s_max,
+        spec(s), strength_label)
+    """
+    base: tuple
+    effects: tuple = ()
+
+    @classmethod
+    def of(cls, base_names, effects=()):
+        """The space of the named base parameters (declared in parameter_space) and effects."""
+        unknown = [n for n in base_names if n not in SPACE]
+        if unknown:
+            raise ValueError("not a movable parameter of the twin: %s (analysis/"
+                             "parameter_space.py declares %s)" % (", ".join(unknown),
+                                                                  ", ".join(SPACE)))
+        return cls(tuple(SPACE[n] for n in base_names), tuple(effects))
+
+    @property
+    def base_names(self):
+        return [p.name for p in self.base]
+
+    @property
+    def effect_names(self):
+        return [effect_input(c.name) for c in self.effects]
+
+    @property
+    def names(self):
+        return self.base_names + self.effect_names
+
+    def bounds(self) -> dict:
+        """{input name: (lower, upper)}: base priors, then effect strength ranges."""
+        out = {p.name: tuple(map(float, p.prior)) for p in self.base}
+        out.update({effect_input(c.name): (0.0, float(c.s_max)) for c in self.effects})
+        return out
+
+    def scaled(self, points: pd.DataFrame) -> np.ndarray:
+        """Points in the unit cube of :meth:`bounds`."""
+        b = self.bounds()
+        lo = np.array([v[0] for v in b.values()])
+        hi = np.array([v[1] for v in b.values()])
+        return (points[list(b)].to_numpy(float) - lo) / (hi - lo)
+
+    def effects_config(self, point) -> dict:
+        """The run config's ``effects`` entry of a design point (the effects with strength > 0)."""
+        out = {}
+        for c in self.effects:
+            s = float(point[effect_input(c.name)])
+            if s > 0:
+                out.update(c.spec(s))
+        return out
+
+    def theta(self, point) -> dict:
+        """{base parameter: value} of a design point."""
+        return {n: float(point[n]) for n in self.base_names}
+
+
+def initial_design(space: DesignSpace, n_points: int, seed: int,
+                   effect_share: float = EFFECT_SHARE) -> pd.DataFrame:
+    """Wave 0: ``n_points`` design points (columns :meth:`DesignSpace.names`).
+
+    The base parameters fill a scrambled Latin hypercube of the prior box (scipy.stats.qmc,
+    optimised for centred discrepancy); the last ``round(effect_share * n_points)`` points
+    switch one effect on, the effects taken in turn, the strength from one more Latin-hypercube
+    column over (0, s_max] (so each effect's strengths spread over its range).
+    """
+    if n_points < 1:
+        raise ValueError("a design needs at least one point, got %d" % n_points)
+    if not 0.0 <= effect_share <= 1.0:
+        raise ValueError("effect_share must lie in [0, 1], got %g" % effect_share)
+    d = len(space.base)
+    u = qmc.LatinHypercube(d=d + 1, rng=np.random.default_rng(seed),
+                           optimization="random-cd").random(n_points)
+    b = space.bounds()
+    pts = pd.DataFrame({n: b[n][0] + u[:, i] * (b[n][1] - b[n][0])
+                        for i, n in enumerate(space.base_names)})
+    for n in space.effect_names:
+        pts[n] = 0.0
+    n_eff = int(round(effect_share * n_points)) if space.effects else 0
+    for k, i in enumerate(range(n_points - n_eff, n_points)):
+        c = space.effects[k % len(space.effects)]
+        pts.loc[i, effect_input(c.name)] = float(c.s_max) * max(u[i, d], 0.02)
+    pts.insert(0, "point", np.arange(n_points))
+    pts["wave"] = 0
+    return pts
+
+
+def implausibility(mean, latent_sd, chaos_sd, obs, obs_sd, obs_chaos_runs=1.0):
+    """Implausibility of each candidate point at each observation.
+
+    Parameters
+    ----------
+    mean, latent_sd, chaos_sd : ndarray (n_points, n_obs) - the emulator's prediction of the
+        twin at each point (analysis.emulator.Prediction at every observation's condition)
+    obs, obs_sd : ndarray (n_obs,) - the observations and their measurement sds
+    obs_chaos_runs : float - how many twin realisations each observation averages (1: a blind
+        dataset made from one realisation; np.inf: a measured mean whose sd holds the scatter)
+
+    Returns
+    -------
+    ndarray (n_points, n_obs)
+    """
+    chaos = 0.0 if np.isinf(obs_chaos_runs) else chaos_sd ** 2 / float(obs_chaos_runs)
+    var = np.asarray(obs_sd, float)[None] ** 2 + latent_sd ** 2 + chaos
+    return np.abs(np.asarray(obs, float)[None] - mean) / np.sqrt(var)
+
+
+def not_ruled_out(imp, cutoff=CUTOFF, which=1):
+    """Mask of points whose ``which``-th largest implausibility is below ``cutoff`` (which=2
+    or 3 guards against one observation the emulator gets wrong, Vernon et al. 2010)."""
+    imp = np.asarray(imp, float)
+    k = min(int(which), imp.shape[1])
+    kth = -np.sort(-imp, axis=1)[:, k - 1]
+    return kth < cutoff
+
+
+def candidate_sample(space: DesignSpace, n: int, seed: int, effects=None) -> pd.DataFrame:
+    """``n`` uniform (Sobol) points of the base box, with the effects in ``effects`` (names)
+    also uniform over their ranges and every other effect off."""
+    eff = list(effects or [])
+    unknown = [e for e in eff if effect_input(e) not in space.effect_names]
+    if unknown:
+        raise ValueError("not an effect of the design space: %s" % ", ".join(unknown))
+    names = space.base_names + [effect_input(e) for e in eff]
+    b = space.bounds()
+    m = int(np.ceil(np.log2(max(n, 2))))
+    u = qmc.Sobol(d=len(names), rng=np.random.default_rng(seed)).random_base2(m)[:n]
+    pts = pd.DataFrame({k: b[k][0] + u[:, i] * (b[k][1] - b[k][0])
+                        for i, k in enumerate(names)})
+    for k in space.effect_names:
+        if k not in pts:
+            pts[k] = 0.0
+    return pts[space.names]
+
+
+def maximin_pick(pool: np.ndarray, existing: np.ndarray, n: int, weight=None) -> list:
+    """Indices of ``n`` rows of ``pool`` (unit-cube points) picked greedily, each the farthest
+    from the existing and the already picked ones (the distance times ``weight`` when given,
+    e.g. the emulator's sd there)."""
+    if n <= 0 or not len(pool):
+        return []
+    w = np.ones(len(pool)) if weight is None else np.asarray(weight, float)
+    if len(existing):
+        dmin = np.min(np.linalg.norm(pool[:, None, :] - existing[None], axis=2), axis=1)
+    else:
+        dmin = np.full(len(pool), np.inf)
+    picked = []
+    for _ in range(min(n, len(pool))):
+        score = np.where(np.isinf(dmin), w, dmin * w)
+        score[picked] = -np.inf
+        i = int(np.argmax(score))
+        picked.append(i)
+        dmin = np.minimum(dmin, np.linalg.norm(pool - pool[i], axis=1))
+    return picked
+
+
+def next_wave(space: DesignSpace, predict, observations, existing: pd.DataFrame, n_points: int,
+              seed: int, *, effects=None, n_candidates=4096, cutoff=CUTOFF, which=1,
+              obs_chaos_runs=1.0):
+    """The next wave's design points and what the current emulator rules out.
+
+    Parameters
+    ----------
+    space : DesignSpace
+    predict : callable(points DataFrame) -> analysis.emulator.Prediction of shape
+        (n_points, n_obs), the twin at every observation (condition x observable)
+    observations : DataFrame with columns value, sd (one row per observation, the order of
+        ``predict``'s columns)
+    existing : DataFrame - the design points run so far (columns space.names)
+    n_points : int - how many to pick
+    seed : int
+    effects : names of the effects free in this wave (None: none)
+    n_candidates, cutoff, which, obs_chaos_runs : see :func:`candidate_sample`,
+        :func:`not_ruled_out`, :func:`implausibility`
+
+    Returns
+    -------
+    (DataFrame of the new points, float - fraction of the candidates not ruled out)
+    """
+    cand = candidate_sample(space, n_candidates, seed, effects)
+    pred = predict(cand)
+    imp = implausibility(pred.mean, pred.latent_sd, pred.chaos_sd,
+                         observations["value"].to_numpy(float),
+                         observations["sd"].to_numpy(float), obs_chaos_runs)
+    keep = not_ruled_out(imp, cutoff, which)
+    frac = float(keep.mean())
+    pool = cand[keep] if keep.any() else cand.iloc[np.argsort(np.max(imp, axis=1))[:64]]
+    # weight: the emulator's largest sd relative to the observations' (where it is unsure)
+    sd_rel = (pred.latent_sd / np.maximum(observations["sd"].to_numpy(float)[None], 1e-30))
+    w = np.max(sd_rel[keep] if keep.any() else sd_rel[np.argsort(np.max(imp, 1))[:64]], axis=1)
+    w = 0.5 + w / max(float(np.max(w)), 1e-30)
+    picked = maximin_pick(space.scaled(pool), space.scaled(existing), n_points, w)
+    new = pool.iloc[picked].reset_index(drop=True)
+    return new, frac
+
+
+def design_runs(space: DesignSpace, points: pd.DataFrame, conditions, *, seeds=(0,),
+                base_config=None, stated_stroke=True):
+    """Run configs of design points at every condition x seed.
+
+    Returns
+    -------
+    DataFrame with one row per run: point, condition_id, seed, config (a run config), and the
+    design point's inputs.
+    """
+    from analysis.run_configs import condition_runs
+    rows = []
+    for _, pt in points.iterrows():
+        for r in condition_runs(conditions, seeds=seeds, theta=space.theta(pt),
+                                base_config=base_config,
+                                effects=space.effects_config(pt) or None,
+                                stated_stroke=stated_stroke):
+            rows.append({"point": int(pt["point"]), "condition_id": r.condition_id,
+                         "seed": r.seed, "config": r.config,
+                         **{n: float(pt[n]) for n in space.names}})
+    return pd.DataFrame(rows)
