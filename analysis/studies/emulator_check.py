@@ -212,12 +212,12 @@ def main(argv=None):
                    "the design runs at (default %(default)s)")
     p.add_argument("--heldout", default=str(DEFAULT_HELDOUT), help="a loop folder with "
                    "model_runs.csv at the same conditions (default %(default)s)")
-    p.add_argument("--points", type=int, default=24, help="wave-0 design points "
+    p.add_argument("--points", type=int, default=24, help="wave-0 design points [-] "
                    "(default %(default)s)")
-    p.add_argument("--replicates", type=int, default=3, help="seeds of the reference point "
+    p.add_argument("--replicates", type=int, default=3, help="seeds of the reference point [-] "
                    "(default %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="design seed (default %(default)s)")
-    p.add_argument("--workers", type=int, default=2, help="parallel twin runs")
+    p.add_argument("--seed", type=int, default=0, help="design seed [-] (default %(default)s)")
+    p.add_argument("--workers", type=int, default=2, help="parallel twin runs [-]")
     p.add_argument("--frame", default="auto", choices=("lab", "jar", "auto"),
                    help="the scene's frame (default %(default)s: the jar frame, 1.7-1.9x "
                         "faster, unless an effect needs the lab's)")
