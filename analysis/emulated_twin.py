@@ -236,7 +236,7 @@ class EmulatedTwin:
 
     def _kinetics(self, theta, effects):
         from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ
-        from analysis.twin_model import candidates
+        from analysis.catalog import candidates
         kin = candidates("kinetics")
         on = [k for k, s in (effects or {}).items() if k in kin and s]
         if len(on) > 1:
@@ -249,7 +249,7 @@ class EmulatedTwin:
                 float(theta.get("intercept_pct", 0.0)))
 
     def _check_effects(self, effects):
-        from analysis.twin_model import candidates
+        from analysis.catalog import candidates
         kin = candidates("kinetics")
         unknown = [k for k in (effects or {}) if effect_input(k) not in self.space.effect_names
                    and k not in kin]
@@ -307,7 +307,7 @@ class EmulatedTwin:
         """diagnose Effects: the design's DEM candidates over [0, s_max] and, with yields, the
         kinetics candidates."""
         from analysis.diagnose import Effect
-        from analysis.twin_model import candidates
+        from analysis.catalog import candidates
         cands = list(self.space.effects)
         if self.has_yields:
             cands += list(candidates("kinetics").values())

@@ -58,7 +58,7 @@ class DesignSpace:
     """The inputs a design moves: base parameters over their priors, effects over [0, s_max].
 
     base : tuple of analysis.parameter_space.Parameter
-    effects : tuple of catalog candidates (analysis.twin_model.catalog.Candidate: name, s_max,
+    effects : tuple of catalog candidates (analysis.catalog.Candidate: name, s_max,
         spec(s), strength_label)
     """
     base: tuple

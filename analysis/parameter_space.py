@@ -87,7 +87,7 @@ BASE_STEPS = {k: p.step for k, p in SPACE.items() if p.step is not None}
 def effect_strengths() -> dict:
     """{effect name: (0, s_max, strength label)} of every candidate effect of the catalog
     (declared by the effects' files)."""
-    from analysis.twin_model import CANDIDATES, OPTIONAL_CANDIDATES
+    from analysis.catalog import CANDIDATES, OPTIONAL_CANDIDATES
     return {c.name: (0.0, float(c.s_max), c.strength_label)
             for c in CANDIDATES + OPTIONAL_CANDIDATES}
 

@@ -10,7 +10,7 @@ from analysis.emulated_twin import (EmulatedTwin, TwinModelContract, build_in_wa
                                     observation_table, stacked_prediction)
 from analysis.fake_twin import FAKE_FCOL_SD_HZ, FAKE_V_REL_SD, fake_summary
 from analysis.history_matching import DesignSpace
-from analysis.twin_model import CANDIDATES
+from analysis.catalog import CANDIDATES
 
 CONDITIONS = pd.DataFrame({"condition_id": ["c1", "c2", "c3", "c4", "c5", "c6"],
                            "frequency_hz": [21.0, 24.0, 26.0, 28.0, 31.0, 23.5],
@@ -65,7 +65,7 @@ def synthetic(effects, seed=7):
 @pytest.fixture(scope="module")
 def built():
     """The model built in waves on data with a hidden rolling resistance."""
-    from analysis.twin_model import candidates
+    from analysis.catalog import candidates
     c = candidates()["rolling_resistance"]
     s_true = 0.8 * c.s_max
     obs = synthetic(c.spec(s_true))
@@ -99,7 +99,7 @@ def test_meets_the_contract_and_predicts_new_runs(built):
             v, f = toy_observables(th["restitution"], HELD["static_friction"],
                                    HELD["rolling_friction"], th["amplitude_m"], c.frequency_hz,
                                    c.ball_diameter_mm * 1e-3)
-            from analysis.twin_model import candidates
+            from analysis.catalog import candidates
             v = float(v) * toy_effect_factor(candidates()["rolling_resistance"].spec(
                 eff["rolling_resistance"]), c.frequency_hz, c.ball_diameter_mm * 1e-3,
                 float(v))

@@ -13,7 +13,7 @@ from analysis.emulator import GPEmulator
 from analysis.history_matching import (DesignSpace, candidate_sample, effect_input,
                                        implausibility, initial_design, maximin_pick,
                                        next_wave, not_ruled_out)
-from analysis.twin_model import CANDIDATES
+from analysis.catalog import CANDIDATES
 
 BOUNDS = {"cr": (0.1, 0.7), "s": (0.0, 1.0), "f": (20.0, 32.0)}
 #: chaos sd of one run per condition (differs 3x between conditions)

@@ -423,7 +423,7 @@ def signatures_page(summ, top, meta, late_v_in_frac) -> str:
     strength (:func:`analysis.twin_model.top_level`), ``meta`` the library.json contents and
     ``late_v_in_frac`` the approach-speed fraction that defines the 'late' pattern."""
     from analysis.flights import FLIGHT_OBSERVABLES
-    from analysis.twin_model.catalog import Candidate
+    from analysis.catalog import Candidate
     full = summ
     summ = top
     cands = {c["name"]: c for c in meta["candidates"]}

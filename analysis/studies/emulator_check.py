@@ -57,7 +57,7 @@ REPLICATE_SEED0 = 500
 
 def design_space():
     from analysis.open_model import DEFAULT_BASE
-    from analysis.twin_model import CANDIDATES
+    from analysis.catalog import CANDIDATES
     return DesignSpace.of(DEFAULT_BASE, tuple(c for c in CANDIDATES if c.kind == "dem"))
 
 

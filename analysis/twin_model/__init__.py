@@ -3,9 +3,9 @@
 The method is described in :mod:`analysis.twin_model.model`. The package, bottom to top (each
 module imports only the ones above it in this list):
 
-* :mod:`~analysis.twin_model.catalog` - the diagnose catalog: :class:`Candidate`,
-  :data:`CANDIDATES`, :data:`DECOYS`, :data:`OPTIONAL_CANDIDATES`, :func:`candidates`, built
-  from the effect files' declarations;
+* :mod:`analysis.catalog` (outside the package: the one model of the twin reads it too) - the
+  diagnose catalog: :class:`Candidate`, :data:`CANDIDATES`, :data:`DECOYS`,
+  :data:`OPTIONAL_CANDIDATES`, :func:`candidates`, built from the effect files' declarations;
 * :mod:`~analysis.twin_model.library` - the signature library: :func:`reference_parameters`,
   :func:`library_configs`, :func:`build_library`, :func:`refresh_flights`,
   :func:`load_library`, :func:`library_at`, the impact pattern rule :func:`in_late_pattern`;
@@ -19,8 +19,8 @@ Every public name is re-exported here: import from ``analysis.twin_model``.
     python -m analysis.twin_model --flights      # impact observables of its cached runs
     python -m analysis.diagnose --dataset DIR --model analysis.twin_model:factory --out DIR
 """
-from analysis.twin_model.catalog import (CANDIDATES, DECOYS, OPTIONAL_CANDIDATES,
-                                         SIGNATURE_LEVELS, Candidate, candidates)
+from analysis.catalog import (CANDIDATES, DECOYS, OPTIONAL_CANDIDATES, SIGNATURE_LEVELS,
+                              Candidate, candidates)
 from analysis.twin_model.library import (CALIBRATION_DIR, DESIGN_FLIGHTS_FILE, LATE_V_IN_FRAC,
                                          SIGNATURE_DIR, add_flight_columns, build_library,
                                          design_flights, in_late_pattern, library_at,

@@ -17,7 +17,7 @@ import pandas as pd
 
 from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
 from analysis.run_configs import condition_runs
-from analysis.twin_model.catalog import CANDIDATES
+from analysis.catalog import CANDIDATES
 
 SIGNATURE_DIR = RESULTS_DIR / "signatures"
 CALIBRATION_DIR = RESULTS_DIR / "calibration"

@@ -40,7 +40,7 @@ diagnose is told ``crn_correlation = 0`` and its identifiability gate subtracts 
 every footprint: an effect the twin cannot tell from its chaos (air drag, the decoy) is never
 identifiable.
 
-The catalog is :mod:`analysis.twin_model.catalog`, the library
+The catalog is :mod:`analysis.catalog`, the library
 :mod:`analysis.twin_model.library`; this module is the model assembled from them.
 
     python -m analysis.diagnose --dataset DIR --model analysis.twin_model:factory --out DIR
@@ -55,7 +55,7 @@ import pandas as pd
 
 #: calibration prior bounds of the DEM base parameters (declared in analysis.calibrate)
 from analysis.parameter_space import CALIBRATED as BASE_BOUNDS
-from analysis.twin_model.catalog import CANDIDATES, candidates
+from analysis.catalog import CANDIDATES, candidates
 from analysis.twin_model.library import (CALIBRATION_DIR, DESIGN_FLIGHTS_FILE, SIGNATURE_DIR,
                                          in_late_pattern, library_at, load_library)
 

@@ -1,5 +1,5 @@
-"""The diagnose catalog of :mod:`analysis.twin_model`: every catalog effect as a diagnose
-candidate (:class:`Candidate`), declared by the effect files themselves (the "diagnose" entry of
+"""The diagnose catalog: every catalog effect as a candidate of the loop's diagnosis and a
+strength input of its emulator (:mod:`analysis.emulated_twin`) - a candidate (:class:`Candidate`), declared by the effect files themselves (the "diagnose" entry of
 each effect's DECLARATION, :func:`effects.diagnose_entries`): :data:`CANDIDATES`, :data:`DECOYS`,
 :data:`OPTIONAL_CANDIDATES` and the lookup :func:`candidates`.
 """
