@@ -12,7 +12,8 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        signatures hidden-demo bench-hidden loop open-world calibrate apparatus effect-transfer
+        signatures hidden-demo bench-hidden loop open-world calibrate apparatus effect-transfer \
+        emulator-check
 
 help:
 	@echo "make demo   - the twin on Table 3, then the loop (compare, diagnose, add, twin rerun) -> results/demo/README.md, results/demo/loop/"
@@ -25,6 +26,7 @@ help:
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
 	@echo "make effect-transfer - effect responses across conditions (leave-one-out) -> results/studies/effect_transfer/"
+	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 + held-out runs; about 1.5 h on 2 cores) -> results/studies/emulator_check/"
 	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"
 	@echo "make geometry | facet-study | timestep-study | signatures - regenerate committed studies"
 
@@ -119,6 +121,11 @@ loop: setup
 open-world: setup
 	$(VPY) -m analysis.studies.open_world_data
 	$(VPY) -m analysis.open_suite
+
+# the one emulator of the twin (analysis/emulator.py) against real twin runs: wave 0 of the
+# design at a blind dataset's conditions, leave-out of whole points and the loop's committed runs
+emulator-check: setup
+	$(VPY) -m analysis.studies.emulator_check --points 24 --workers 2
 
 # an effect's response predicted at each condition from the others (committed runs, seconds)
 effect-transfer: venv

@@ -969,6 +969,99 @@ def calibrate_base(predict, observations, base_params, *, model_se=None,
     return prob.stage(theta0), prob.fit(theta0)
 
 
+@dataclass(frozen=True)
+class ProfileInterval:
+    """A profile-likelihood interval of one fitted parameter.
+
+    lower, upper : the interval's ends (a bound of the parameter where the profile never
+        rises by ``threshold`` before it: ``open_lower`` / ``open_upper``)
+    level : its coverage (e.g. 0.95); threshold : the rise of -2 log L that bounds it
+    """
+    name: str
+    value: float
+    lower: float
+    upper: float
+    level: float
+    threshold: float
+    open_lower: bool
+    open_upper: bool
+
+
+def profile_interval(predict, observations, base_params, name, fit: FitResult, *,
+                     model_se=None, level=0.95, base_step_frac: float = 1e-3,
+                     effect_se=None, max_steps=40) -> ProfileInterval:
+    """The ``level`` profile-likelihood interval of parameter ``name`` of ``fit``.
+
+    The other parameters of ``base_params`` are refitted with ``name`` held at each trial
+    value; the interval is where -2 log L (the fit's objective, with the log-sigma term when
+    sigma moves) rises by less than the chi-square(1) quantile above its minimum - the
+    interval of Wilks' theorem, which follows the likelihood along a curved ridge where the
+    curvature at the optimum (``fit.stderr``) does not. Each end is bracketed outwards in steps
+    of the fit's standard error (at least 1 % of the range) and found by bisection.
+    """
+    bp = {p.name: p for p in base_params}
+    if name not in bp:
+        raise ValueError("profile_interval: %r is not a fitted parameter (%s)"
+                         % (name, ", ".join(bp)))
+    if not 0.0 < level < 1.0:
+        raise ValueError("profile_interval: level must lie in (0, 1), got %g" % level)
+    p0 = bp[name]
+    others = [BaseParameter(q.name, float(np.clip(fit.params[q.name], q.lower, q.upper)),
+                            q.lower, q.upper) for q in base_params if q.name != name]
+    thr = float(stats.chi2.ppf(level, 1))
+    x_hat = float(np.clip(fit.params[name], p0.lower, p0.upper))
+    start = {q.name: q.value for q in others}
+
+    def rise(x):
+        def pred(theta, effects=None):
+            return predict(dict(theta, **{name: float(x)}), effects)
+
+        def se_fn(theta, effects=None):
+            return model_se(dict(theta, **{name: float(x)}), effects)
+        ms = se_fn if callable(model_se) else model_se
+        starts = [BaseParameter(q.name, float(np.clip(start[q.name], q.lower, q.upper)),
+                                q.lower, q.upper) for q in others]
+        if not starts:
+            prob = Problem(pred, observations, [BaseParameter("_none", 0.5, 0.0, 1.0)], [],
+                           ms, None, base_step_frac, None, effect_se)
+            f = prob.stage({"_none": 0.5})
+        else:
+            prob = Problem(pred, observations, starts, [], ms, None, base_step_frac, None,
+                           effect_se)
+            f = prob.fit({q.name: q.value for q in starts})
+            start.update({q.name: f.params[q.name] for q in starts})
+        return f.objective - fit.objective - thr
+
+    se = float(fit.stderr.get(name, np.nan))
+    step = max(se if np.isfinite(se) and se > 0 else 0.0, 0.01 * (p0.upper - p0.lower))
+
+    def end(direction):
+        start.update({q.name: fit.params[q.name] for q in others})
+        a, width = x_hat, step
+        for _ in range(max_steps):
+            b = float(np.clip(a + direction * width, p0.lower, p0.upper))
+            if rise(b) >= 0:
+                # bisection on the signs seen (each inner fit starts where the last ended, so
+                # a point's value may differ slightly between two calls: no re-evaluation)
+                for _ in range(40):
+                    if abs(b - a) <= 1e-4 * step:
+                        break
+                    c = 0.5 * (a + b)
+                    if rise(c) >= 0:
+                        b = c
+                    else:
+                        a = c
+                return 0.5 * (a + b), False
+            if b in (p0.lower, p0.upper):
+                return b, True
+            a, width = b, 1.5 * width
+        return a, True
+
+    lo, open_lo = end(-1.0) if x_hat > p0.lower else (p0.lower, True)
+    hi, open_hi = end(+1.0) if x_hat < p0.upper else (p0.upper, True)
+    return ProfileInterval(name, x_hat, lo, hi, level, thr, open_lo, open_hi)
+
+
 @dataclass
 class ModelSpec:
     """What a model factory (``--model package.module:function``) gives diagnose.

@@ -419,3 +419,36 @@ def test_model_spec_takes_the_dict_contract_and_names_bad_keys():
         ModelSpec.from_any({"predict": predict, "base_params": base})
     with pytest.raises(TypeError, match="ModelSpec or a dict"):
         ModelSpec.from_any([predict])
+
+
+def test_profile_interval_covers_the_truth_as_often_as_it_claims():
+    """A curved ridge (the strength trades with a base parameter through a product) on an
+    analytic model with known truth: over 200 noise draws the 95 % profile interval of the
+    strength covers the truth 90-99 % of the time; its ends are where -2 log L rose by 3.84."""
+    from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
+    x = np.linspace(0.0, 1.0, 12)
+    keys = pd.MultiIndex.from_tuples([("c%d" % i, "y") for i in range(len(x))],
+                                     names=["condition_id", "observable"])
+
+    def predict(theta, effects=None):
+        a, s = theta["a"], theta["s"]
+        return pd.Series(a * (1.0 + 0.5 * x) * np.exp(-s * x) + 0.3 * s * x ** 2, index=keys)
+
+    truth = {"a": 1.0, "s": 0.6}
+    rng = np.random.default_rng(3)
+    sd = 0.02
+    hits, n = 0, 200
+    for k in range(n):
+        obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
+                            "value": predict(truth).to_numpy() + sd * rng.standard_normal(
+                                len(x)), "sd": sd})
+        base = [BaseParameter("a", 0.8, 0.2, 3.0), BaseParameter("s", 0.3, 0.0, 3.0)]
+        _, fit = calibrate_base(predict, obs, base)
+        iv = profile_interval(predict, obs, base, "s", fit)
+        hits += iv.lower <= truth["s"] <= iv.upper
+        if k == 0:
+            assert iv.lower < fit.params["s"] < iv.upper
+            assert not iv.open_lower and not iv.open_upper
+    assert 0.90 * n <= hits <= 0.99 * n, hits
+    with pytest.raises(ValueError, match="not a fitted parameter"):
+        profile_interval(predict, obs, base, "b", fit)

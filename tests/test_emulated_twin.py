@@ -7,6 +7,7 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from analysis.emulated_twin import (EmulatedTwin, TwinModelContract, build_in_waves,
+                                    emulator_share, wave_runs,
                                     observation_table, stacked_prediction)
 from analysis.fake_twin import FAKE_FCOL_SD_HZ, FAKE_V_REL_SD, fake_summary
 from analysis.history_matching import DesignSpace
@@ -134,6 +135,14 @@ def test_forward_selection_names_the_hidden_effect_and_covers_it(built):
     fit = fs["last_fit"]
     s, se = fit.params["rolling_resistance"], fit.stderr["rolling_resistance"]
     assert abs(s - built["s_true"]) < 1.96 * se + 1e-9, (s, se, built["s_true"])
+    # the profile-likelihood interval on the emulator (its sd in the likelihood) covers too
+    from analysis.diagnose import profile_interval
+    from analysis.loop import _Wrapped, _base_params
+    w = _Wrapped(m, fs["added"], fs["theta"])
+    iv = profile_interval(w.predict, obs, _base_params(m, fs["theta"], fs["added"]),
+                          "rolling_resistance", fit, model_se=w.model_se())
+    assert iv.lower <= built["s_true"] <= iv.upper, iv
+    assert iv.upper - iv.lower < 4.5 * se, (iv, se)
 
 
 def test_bad_fit_inputs():
@@ -150,3 +159,16 @@ def test_bad_fit_inputs():
         m.fit(runs)
     with pytest.raises(ValueError, match="unknown effect"):
         m.predict(TRUTH, {"gravity_off": 1.0})
+
+
+def test_wave_runs_and_emulator_share(built):
+    assert wave_runs(6, n_initial=16, n_waves=3, per_wave=8, replicates=3) == {
+        "wave 0": 114, "refinement": 144, "total": 258}
+    m = built["model"]
+    # every run of every wave trains the model (a wave may pick fewer points than asked when
+    # few candidates are left not ruled out)
+    n_refined = len(built["points"]) - 16
+    assert 0 < n_refined <= 3 * 8 and len(m.runs_) == 114 + 6 * n_refined
+    share = emulator_share(m, built["obs"], m.point(TRUTH, {"rolling_resistance":
+                                                            built["s_true"]}))
+    assert share.shape == (1,) and 0.0 < share[0] < 2.0
