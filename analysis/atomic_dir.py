@@ -99,6 +99,18 @@ def own_csv(columns, prefix=False):
     return is_own
 
 
+def own_text(first_line):
+    """An ``is_own`` test for :func:`check_out_file`: the existing file's first line starts
+    with ``first_line`` (a page's title, a table's header line the stage writes)."""
+    def is_own(path) -> bool:
+        try:
+            with open(path, encoding="utf-8", errors="replace") as fh:
+                return fh.readline().startswith(first_line)
+        except OSError:
+            return False
+    return is_own
+
+
 def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names=None,
                   is_own=None):
     """Raise :class:`OutputError` when ``out_dir`` is not a folder this project may (re)write.
@@ -202,7 +214,7 @@ def publish_dir(tmp, out_dir, protected=(), area="results", flag="--out", own_na
     return out_dir
 
 
-def check_out_file(out_file, protected=(), is_own=None, flag="--out"):
+def check_out_file(out_file, protected=(), is_own=None, flag="--out", homes=()):
     """Raise :class:`OutputError` when ``out_file`` is not a file this project may (re)write.
 
     The places refused are those of :func:`check_out_dir`: a path inside the repository outside
@@ -217,6 +229,9 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out"):
     is_own : callable, optional - ``is_own(resolved_path) -> bool``: True when the existing file
         is the stage's own earlier output (without it, no existing file is replaced)
     flag : str - the command-line option that named the file, for the messages
+    homes : iterable of path-like - further folders of the repository where this stage's file
+        belongs (e.g. ``geometry/`` for the jar's STL): a path in one of them is taken like one
+        in ``results/`` (an existing file there is still replaced only when ``is_own``)
 
     Returns
     -------
@@ -226,7 +241,8 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out"):
     repo, results, runs = _repo_paths()
     if out.is_dir():
         raise OutputError("%s %s is a folder; give a file name" % (flag, out_file))
-    if _within(out, repo) and not _within(out.parent, results):
+    homes = [results] + [Path(h).expanduser().resolve() for h in homes or ()]
+    if _within(out, repo) and not any(_within(out.parent, h) for h in homes):
         raise OutputError("%s %s lies in the repository outside results/; give results/<name> "
                           "or a path outside the repository" % (flag, out_file))
     if _within(out, runs):
@@ -259,6 +275,10 @@ def atomic_file(path):
     tmp = Path(name)
     try:
         yield tmp
+        if tmp.exists():                    # a plain file's mode, not mkstemp's 0600
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -24,6 +24,30 @@ from analysis.run_configs import condition_runs
 HIDDEN_TRUTH_DIR = RESULTS_DIR / "hidden"
 
 
+#: keys every truth file this module writes holds (how it recognises its own earlier file)
+TRUTH_KEYS = ("name", "effects", "base_config", "noise", "run_ids")
+
+
+def _own_truth(path) -> bool:
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and all(k in d for k in TRUTH_KEYS)
+
+
+def check_outputs(name, out_dir=None, truth_dir=None, flag="--out"):
+    """The project's output rule for a hidden dataset, before any run (raises
+    :class:`analysis.atomic_dir.OutputError`): its folder (``out_dir``, default
+    data/measurements/<name>) is replaced only when this project wrote it, its truth file
+    (``<truth_dir>/<name>.truth.json``) only when it is a truth file written here. Returns
+    (dataset folder, truth file) resolved."""
+    from analysis.atomic_dir import check_out_dir, check_out_file
+    out = check_out_dir(Path(out_dir or MEASUREMENTS_DIR / name), area="datasets", flag=flag)
+    truth = Path(truth_dir or HIDDEN_TRUTH_DIR) / ("%s.truth.json" % name)
+    return out, check_out_file(truth, [out], is_own=_own_truth, flag=flag)
+
+
 def parse_effect(text):
     """'name:p=v,q=w' -> ('name', {'p': v, 'q': w})."""
     name, _, rest = text.partition(":")
@@ -102,6 +126,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     if any(not np.isfinite(t) or t <= 0 for t in yield_times_min):
         raise ValueError("yield times must be finite and > 0 min, got %r" % (yield_times_min,))
     load_effects(effects)  # unknown effects / parameters fail here, before any run
+    check_outputs(name, out_dir, truth_dir)   # and a folder or truth file not ours to replace
     kin = load_effects(effects, side="kinetics")
     if len(kin) > 1:
         raise ValueError("kinetics effects do not compose: %s" % [k.name for k in kin])
@@ -209,12 +234,10 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
              "track_noise_m": track_noise_m if track_tables else None,
              "track_scale_sd": track_scale_sd if track_tables else None,
              "run_ids": list(t["run_id"])}
-    tdir = Path(truth_dir or HIDDEN_TRUTH_DIR)
-    tdir.mkdir(parents=True, exist_ok=True)
-    truth_path = tdir / ("%s.truth.json" % name)
-    tmp = truth_path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(truth, indent=1))
-    tmp.replace(truth_path)
+    from analysis.atomic_dir import atomic_file
+    _, truth_path = check_outputs(name, out_dir, truth_dir)
+    with atomic_file(truth_path) as tmp:
+        tmp.write_text(json.dumps(truth, indent=1))
     return ds_path, truth_path
 
 

@@ -15,7 +15,10 @@ z^2 of the no-effect datasets' residuals: do the stated sigmas match the scatter
 ``open_suite.png`` (fitted strengths against the truth; chi2/dof per dataset) and
 ``README.md`` (the goal lines with their counts) into ``--out``. ``--score-only`` scores the
 loops already in ``--out`` without running any; a ``NOTES.md`` there (written by hand) is
-appended to the README.
+appended to the README. ``--out`` and every loop folder the suite would write in it follow the
+project's folder rule before any loop runs (:func:`analysis.atomic_dir.check_out_dir`: never a
+dataset, never a folder holding files this project did not write); its own files are written
+atomically and the folder is marked.
 
 Example::
 
@@ -43,6 +46,7 @@ FIGURE = "open_suite.png"
 #: the README each time the suite is scored again
 NOTES = "NOTES.md"
 DATASETS_DIR = RESULTS_DIR / "open_world" / "datasets"
+SIGMA_CHECK_NAME = "sigma_check.csv"
 
 
 def truth_strengths(truth) -> dict:
@@ -175,6 +179,51 @@ def detectable_each(dataset, truth) -> dict:
             for k in true}
 
 
+def _dataset_names(datasets_dir):
+    return sorted(p.name for p in Path(datasets_dir).iterdir()
+                  if p.is_dir() and (p / "dataset.json").exists())
+
+
+#: the files the suite writes (and reads: NOTES.md) in ``--out`` beside the loop folders
+SUITE_FILES = ("summary.csv", SIGMA_CHECK_NAME, FIGURE, "README.md", NOTES)
+
+
+def _suite_folder(folder) -> bool:
+    from analysis.atomic_dir import MARKER
+    return all((p.is_dir() and not p.is_symlink() and (p / MARKER).is_file())
+               or (p.is_file() and p.name in SUITE_FILES) for p in Path(folder).iterdir())
+
+
+def check_outputs(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, score_only=False):
+    """The folder rule for ``--out`` and every loop folder the suite would write there, before
+    any loop runs (raises :class:`analysis.atomic_dir.OutputError`)."""
+    from analysis.atomic_dir import OutputError, check_out_dir
+    datasets_dir, out_dir = Path(datasets_dir), Path(out_dir)
+    if not datasets_dir.is_dir():
+        raise OutputError("--datasets %s is not a folder of datasets" % datasets_dir)
+    names = _dataset_names(datasets_dir)
+    if only:
+        names = [n for n in names if n in only]
+    if not names:
+        raise ValueError("--datasets %s holds no dataset folder (dataset.json)%s"
+                         % (datasets_dir, " named by --only" if only else ""))
+    try:
+        check_out_dir(out_dir, [datasets_dir])
+    except OutputError as exc:
+        # an unmarked folder holding nothing but the suite's loop folders (each marked) and
+        # its own files: the suite's earlier output from before the folder was marked
+        if "did not write" not in str(exc) or not _suite_folder(out_dir):
+            raise
+    if score_only and not any((out_dir / n / "loop.json").exists() for n in names):
+        raise ValueError("--score-only: --out %s holds no loop of these datasets to score"
+                         % out_dir)
+    for name in names:
+        dest = out_dir / name
+        if (only and name not in only) or score_only or (dest / "loop.json").exists():
+            continue
+        check_out_dir(dest, [datasets_dir / name])
+
+
 def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
               score_only=False, **loop_kw):
     """Run the loop on every dataset (resuming) and return the summary table; ``score_only``:
@@ -182,10 +231,9 @@ def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
     from analysis.loop import run_loop, write_loop
     from analysis.measurements import load_dataset
     datasets_dir, out_dir = Path(datasets_dir), Path(out_dir)
+    check_outputs(datasets_dir, out_dir, only, score_only)
     rows = []
-    names = sorted(p.name for p in datasets_dir.iterdir()
-                   if p.is_dir() and (p / "dataset.json").exists())
-    for name in names:
+    for name in _dataset_names(datasets_dir):
         if only and name not in only:
             continue
         truth = json.loads((datasets_dir / "truth" / ("%s.truth.json" % name)).read_text())
@@ -213,7 +261,7 @@ def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
 
 
 #: the per-observable check of the stated sigmas, written beside summary.csv
-SIGMA_CHECK = "sigma_check.csv"
+SIGMA_CHECK = SIGMA_CHECK_NAME
 
 
 def sigma_check(out_dir, summ) -> pd.DataFrame:
@@ -325,17 +373,28 @@ def main(argv=None):
     ap.add_argument("--score-only", action="store_true",
                     help="score the datasets whose loop already ran in --out, run no loop")
     a = ap.parse_args(argv)
+    from analysis.atomic_dir import MARKER, OutputError, atomic_file
+    try:
+        check_outputs(a.datasets, a.out, a.only, a.score_only)
+    except (OutputError, ValueError, OSError) as exc:
+        print("analysis.open_suite: error: %s" % exc, file=sys.stderr)
+        return 2
+    out = Path(a.out)
     summ = run_suite(a.datasets, a.out, only=a.only, score_only=a.score_only,
                      workers=a.workers,
                      rerun=not a.no_rerun, max_reanchor=a.max_reanchor,
                      null_draws=a.null_draws, log=lambda s: print(s, file=sys.stderr))
-    out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    summ.to_csv(out / "summary.csv", index=False)
+    if not (out / MARKER).exists():
+        (out / MARKER).write_text("written by the mill twin project; a rerun may replace "
+                                  "this folder\n")
+    with atomic_file(out / "summary.csv") as tmp:
+        summ.to_csv(tmp, index=False)
     lines = goal_lines(summ)
     check = sigma_check(out, summ) if len(summ) else pd.DataFrame()
     if len(check):
-        check.to_csv(out / SIGMA_CHECK, index=False)
+        with atomic_file(out / SIGMA_CHECK) as tmp:
+            check.to_csv(tmp, index=False)
         line = sigma_line(check)
         if line:
             lines.append(line)
@@ -343,11 +402,12 @@ def main(argv=None):
     from analysis.config import REPO_ROOT
     rel = os.path.relpath(Path(a.datasets).resolve(), REPO_ROOT)
     if len(summ):
-        write_open_suite_figure(summ, strength_ranges(), out / FIGURE)
+        with atomic_file(out / FIGURE) as tmp:
+            write_open_suite_figure(summ, strength_ranges(), tmp)
     notes = out / NOTES
-    (out / "README.md").write_text(open_suite_page(
-        summ, lines, rel, FIGURE if len(summ) else None,
-        notes.read_text() if notes.is_file() else ""))
+    with atomic_file(out / "README.md") as tmp:
+        tmp.write_text(open_suite_page(summ, lines, rel, FIGURE if len(summ) else None,
+                                       notes.read_text() if notes.is_file() else ""))
     print("\n".join(lines))
     return 0
 

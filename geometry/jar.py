@@ -206,12 +206,40 @@ def mesh_for_config(cfg, stl_abs_path):
     return tri * scale, info, scale
 
 
+#: the name in the header of every STL this command writes (how it knows its own file)
+STL_NAME = "MM400 25 mL jar cavity, mm, normals inward"
+
+
+def _own_stl(path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(80).startswith(("binary STL: %s" % STL_NAME).encode()[:40])
+    except OSError:
+        return False
+
+
+def check_out(out):
+    """The project's file rule for ``--out`` before the mesh is built (raises
+    ``analysis.atomic_dir.OutputError``): a new file, or an STL this command wrote; in the
+    repository only under ``results/`` or ``geometry/``."""
+    try:
+        from analysis.atomic_dir import check_out_file
+    except ImportError:  # pragma: no cover - run as a plain script
+        import os
+        sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        from analysis.atomic_dir import check_out_file
+    from analysis.config import REPO_ROOT
+    return check_out_file(out, is_own=_own_stl, flag="--out", homes=[REPO_ROOT / "geometry"])
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 epilog="example: python -m geometry.jar --out "
                                 "geometry/mm400_25ml.stl --diameter-mm 28 --fillet-mm 5 "
                                 "--volume-ml 25")
-    p.add_argument("--out", default="geometry/mm400_25ml.stl", help="STL to write (in mm)")
+    p.add_argument("--out", default="geometry/mm400_25ml.stl",
+                   help="STL to write (in mm); an existing file is replaced only when this "
+                   "command wrote it")
     p.add_argument("--diameter-mm", type=float, default=DEFAULTS["inner_diameter_m"] * 1e3,
                    help="inner diameter of the cavity [mm] (default %(default).4g)")
     p.add_argument("--fillet-mm", type=float, default=DEFAULTS["fillet_radius_m"] * 1e3,
@@ -227,9 +255,10 @@ def main(argv=None):
     try:
         if a.diameter_mm <= 0 or a.volume_ml <= 0 or a.fillet_mm <= 0:
             raise ValueError("diameter, fillet and volume must be positive")
+        out = str(check_out(a.out))
         tri, length = make_jar(a.volume_ml * 1e-6, a.diameter_mm * 1e-3, a.fillet_mm * 1e-3,
                                a.n_circ)
-        write_stl(a.out, tri * 1e3, name="MM400 25 mL jar cavity, mm, normals inward")
+        write_stl(out, tri * 1e3, name=STL_NAME)
         info = check_jar_mesh(tri)
     except (ValueError, OSError) as exc:
         print("geometry.jar: error: %s" % exc, file=sys.stderr)

@@ -137,6 +137,32 @@ def _own_recording_plus_stranger(w):
     return str(d)
 
 
+def _py(command, argv):
+    """A row of a command run as ``python -m <module>`` (a subprocess)."""
+    return (command, argv)
+
+
+def _with_foreign_truth(w):
+    """A datasets parent whose truth/null_a.truth.json is a user's file."""
+    (w / "ow" / "truth").mkdir(parents=True)
+    (w / "ow" / "truth" / "null_a.truth.json").write_text('{"mine": 1}')
+    return str(w / "ow")
+
+
+def _with_unmarked_dataset(w):
+    """A datasets parent whose null_a folder holds a user's file."""
+    (w / "ow2" / "null_a").mkdir(parents=True)
+    (w / "ow2" / "null_a" / "thesis.tex").write_text("precious")
+    return str(w / "ow2")
+
+
+def _datasets(w):
+    """A folder of datasets (one folder with a dataset.json) for the open suite."""
+    (w / "dsets" / "x").mkdir(parents=True)
+    (w / "dsets" / "x" / "dataset.json").write_text("{}")
+    return str(w / "dsets")
+
+
 yade = pytest.mark.yade
 #: (id, (command, argv(work)), words the error line holds, repository folder it aims at,
 #:  marks)
@@ -194,6 +220,64 @@ ROWS = [
     ("sweep-yade-table-foreign-file",
      _sweep("--export-yade-table", lambda w: str(w / "notes" / "thesis.tex")),
      ["--export-yade-table", "already exists"], None, []),
+    # --- every other command that writes: its --out before any work (python -m, a subprocess)
+    ("bench-profile-out-foreign-file",
+     _py("bench_profile", lambda w: ["--out", str(w / "foreign.csv")]),
+     ["--out", "already exists"], None, []),
+    ("bench-profile-out-parent-is-a-file",
+     _py("bench_profile", lambda w: ["--out", str(w / "file.txt" / "p.csv")]),
+     ["--out", "is a file"], None, []),
+    ("frame-equivalence-out-foreign-file",
+     _py("frame_equivalence", lambda w: ["--out", str(w / "foreign")]),
+     ["--out", "foreign.csv", "already exists"], None, []),
+    ("frame-equivalence-out-in-a-source-folder",
+     _py("frame_equivalence", lambda w: ["--out", str(REPO_ROOT / "yade_scripts" / "fe")]),
+     ["--out", "outside results/"], REPO_ROOT / "yade_scripts", []),
+    ("refit-coverage-out-unmarked-folder",
+     _py("refit_coverage", lambda w: ["--loops", str(w / "in"), "--out", str(w / "notes")]),
+     ["--out", "did not write"], None, []),
+    ("refit-coverage-out-inside-its-loops",
+     _py("refit_coverage", lambda w: ["--loops", str(w / "notes"),
+                                      "--out", str(w / "notes" / "sub")]),
+     ["--out", "input"], None, []),
+    ("hidden-blind-data-out-is-a-file",
+     _py("hidden_blind_data", lambda w: ["--out", str(w / "file.txt")]),
+     ["--out", "is a file"], None, []),
+    ("hidden-blind-data-out-in-a-source-folder",
+     _py("hidden_blind_data", lambda w: ["--out", str(REPO_ROOT / "yade_scripts")]),
+     ["--out", "outside"], REPO_ROOT / "yade_scripts", []),
+    ("open-world-data-foreign-truth-file",
+     _py("open_world_data", lambda w: ["--out", _with_foreign_truth(w), "--only", "null_a",
+                                       "--films", "none"]),
+     ["--out", "null_a.truth.json", "already exists"], None, []),
+    ("open-world-data-unmarked-dataset-folder",
+     _py("open_world_data", lambda w: ["--out", _with_unmarked_dataset(w), "--only",
+                                       "null_a", "--films", "none"]),
+     ["--out", "null_a", "did not write"], None, []),
+    ("open-suite-out-unmarked-folder",
+     _py("open_suite", lambda w: ["--datasets", _datasets(w), "--out", str(w / "notes")]),
+     ["--out", "did not write"], None, []),
+    ("open-suite-out-inside-its-datasets",
+     _py("open_suite", lambda w: ["--datasets", _datasets(w), "--out",
+                                  str(w / "dsets" / "x")]),
+     ["--out", "input"], None, []),
+    ("open-suite-no-datasets",
+     _py("open_suite", lambda w: ["--datasets", str(w / "notes"), "--out", str(w / "os")]),
+     ["--datasets", "no dataset folder"], None, []),
+    ("twin-model-build-out-unmarked-folder",
+     _py("twin_model", lambda w: ["--build", "--out", str(w / "notes")]),
+     ["--out", "did not write"], None, []),
+    ("twin-model-flights-out-is-a-file",
+     _py("twin_model", lambda w: ["--flights", "--out", str(w / "file.txt")]),
+     ["--out", "is a file"], None, []),
+    ("jar-out-foreign-file", _py("jar", lambda w: ["--out", str(w / "foreign.csv")]),
+     ["--out", "already exists"], None, []),
+    ("jar-out-a-source-in-geometry",
+     _py("jar", lambda w: ["--out", str(REPO_ROOT / "geometry" / "stl_io.py")]),
+     ["--out", "already exists"], REPO_ROOT / "geometry", []),
+    ("jar-out-in-a-source-folder",
+     _py("jar", lambda w: ["--out", str(REPO_ROOT / "yade_scripts" / "j.stl")]),
+     ["--out", "outside results/"], REPO_ROOT / "yade_scripts", []),
     # --- the loop's options, before planning (the dry run included)
     ("loop-budget-runs-negative-dry-run", _loop("--dry-run", "--budget-runs", "-1"),
      ["--budget-runs", ">= 0", "-1"], None, []),
@@ -245,7 +329,23 @@ ROWS = [
 PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: error: ",
           "sweep": "analysis.sweep: error: ",
           "loop": "analysis.loop: error: ", "mill": "mill.py: error: ",
-          "profile": "profile_scene.py: error: "}
+          "profile": "profile_scene.py: error: ",
+          "bench_profile": "analysis.bench.profile: error: ",
+          "frame_equivalence": "frame_equivalence: error: ",
+          "refit_coverage": "refit_coverage: error: ",
+          "hidden_blind_data": "hidden_blind_data: error: ",
+          "open_world_data": "open_world_data: error: ",
+          "open_suite": "analysis.open_suite: error: ",
+          "twin_model": "analysis.twin_model: error: ",
+          "jar": "geometry.jar: error: "}
+#: the commands run as ``python -m <module>`` in a subprocess
+MODULES = {"bench_profile": "analysis.bench.profile",
+           "frame_equivalence": "analysis.studies.frame_equivalence",
+           "refit_coverage": "analysis.studies.refit_coverage",
+           "hidden_blind_data": "analysis.studies.hidden_blind_data",
+           "open_world_data": "analysis.studies.open_world_data",
+           "open_suite": "analysis.open_suite", "twin_model": "analysis.twin_model",
+           "jar": "geometry.jar"}
 
 
 def _run(command, args):
@@ -258,6 +358,12 @@ def _run(command, args):
                               timeout=300)
         own = [ln for ln in proc.stderr.splitlines() if ln.startswith(script.name + ":")]
         return proc.returncode, proc.stdout + proc.stderr, own
+    if command in MODULES:
+        proc = subprocess.run([sys.executable, "-m", MODULES[command], *args], cwd=os.getcwd(),
+                              env=dict(os.environ, PYTHONPATH=str(REPO_ROOT)),
+                              capture_output=True, text=True, stdin=subprocess.DEVNULL,
+                              timeout=120)
+        return proc.returncode, proc.stdout + proc.stderr, proc.stderr.strip().splitlines()
     main = {"observe": obs.main, "flights": flt.main, "loop": loop.main,
             "sweep": sweep.main}[command]
     try:
@@ -290,7 +396,7 @@ def test_refused_with_one_line_and_nothing_changed(command, argv, words, aims_at
     assert tree_hash(work) == before
     if aims_at:
         assert tree_hash(aims_at) == repo_before
-    if command in ("mill", "profile"):     # refused before any simulation: no scene built
+    if command in ("mill", "profile") or command in MODULES:   # refused before any work
         assert time.time() - t0 < 60
         assert not list(work.parent.glob("**/.tmp-*"))
 
@@ -582,3 +688,43 @@ def test_a_failing_twin_run_is_one_line_and_not_the_bad_input_code(work, monkeyp
     assert rc == 1, err
     assert len(err) == 1 and "failed" in err[0] and "left the jar" in err[0], err
     assert not (work / "lo").exists()
+
+
+def test_the_other_writers_accept_their_own_earlier_output(work):
+    """What each writer of the table's python -m rows replaces: its own earlier file or folder
+    (the refusals are the table's), checked without any run."""
+    from analysis import open_suite
+    from analysis.bench import profile
+    from analysis.hidden import check_outputs as hidden_outputs
+    from analysis.studies import frame_equivalence as fe
+    from geometry import jar
+    res = work / "res"
+    res.mkdir()
+    (res / "prof.csv").write_text(",".join(profile.COLUMNS) + "\n")
+    assert profile.check_out(res / "prof.csv") == (res / "prof.csv").resolve()
+    (res / "fe.csv").write_text(",".join(fe.TABLE_HEAD) + ",v_mean_m_s_lab\n")
+    (res / "fe.md").write_text(fe.PAGE_TITLE + ", 8 paper conditions x 3 seeds\n")
+    assert fe.check_outputs(res / "fe")[1] == (res / "fe.md").resolve()
+    (res / "fe.md").write_text("# my notes\n")
+    with pytest.raises(atomic_dir.OutputError, match="already exists"):
+        fe.check_outputs(res / "fe")
+    (res / "truth").mkdir()
+    (res / "truth" / "d.truth.json").write_text(json.dumps(
+        {"name": "d", "effects": {}, "base_config": {}, "noise": {}, "run_ids": []}))
+    assert hidden_outputs("d", res / "d", res / "truth")[1].name == "d.truth.json"
+    # the suite's folder from before the mark: marked loop folders and its own files only
+    suite = work / "suite"
+    (suite / "null_a").mkdir(parents=True)
+    (suite / "null_a" / atomic_dir.MARKER).write_text("")
+    (suite / "summary.csv").write_text("dataset\n")
+    assert open_suite._suite_folder(suite)
+    (suite / "thesis.tex").write_text("precious")
+    assert not open_suite._suite_folder(suite)
+    # the jar: a new STL, then its own replaced; never another file
+    out = res / "jar.stl"
+    for _ in range(2):
+        assert jar.main(["--out", str(out), "--n-circ", "16"]) == 0
+    assert out.read_bytes()[:80].startswith(b"binary STL: " + jar.STL_NAME.encode()[:20])
+    assert jar.check_out(REPO_ROOT / "geometry" / "mm400_25ml.stl")   # the committed jar
+    assert jar.main(["--out", str(work / "foreign.csv")]) == 2
+    assert (work / "foreign.csv").read_text() == "x,y\n1,2\n"

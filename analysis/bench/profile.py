@@ -10,7 +10,9 @@ engine, its share of the step time in flight and in contact (the contact monitor
 sampling) and its microseconds per step. The Python monitors are the PyRunners 'sampler' (the
 trajectory) and 'contacts' (the contact monitor, the protocol and the steady-state test);
 'profile_probe' is the profiler's own. Writes the table as CSV (one row per case, state and
-engine). Runs go to a temporary folder; nothing is cached.
+engine). Runs go to a temporary folder; nothing is cached. ``--out`` follows the project's
+file rule before any run (:func:`analysis.atomic_dir.check_out_file`: never a file this command
+did not write, nothing in the repository outside ``results/``) and is written atomically.
 """
 from __future__ import annotations
 
@@ -28,6 +30,8 @@ from analysis.config import REPO_ROOT, RESULTS_DIR, YADE_SCRIPTS_DIR, twin_confi
 from analysis.twin import yade_executable
 
 OUT = RESULTS_DIR / "bench" / "scene_profile.csv"
+#: the columns of the table this command writes (how it recognises its own earlier file)
+COLUMNS = ("case", "state", "steps", "engine", "share", "us_per_step", "calls")
 _FREE = {"protocol": "free", "dt_s": 5e-7, "frequency_hz": 25.0, "ball_start": "random",
          "record_s": 0.1, "seed": 3}
 _MILL = {"frequency_hz": 25.0, "record_s": 0.5, "seed": 3}
@@ -63,7 +67,13 @@ def table(case: str, prof: dict) -> pd.DataFrame:
                          "share": v["ns"] / tot if tot else float("nan"),
                          "us_per_step": v["ns"] / 1e3 / steps if steps else float("nan"),
                          "calls": v["calls"]})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=list(COLUMNS))
+
+
+def check_out(out):
+    """The file rule for ``--out`` (raises :class:`analysis.atomic_dir.OutputError`)."""
+    from analysis.atomic_dir import check_out_file, own_csv
+    return check_out_file(out, is_own=own_csv(COLUMNS), flag="--out")
 
 
 def main(argv=None):
@@ -72,6 +82,12 @@ def main(argv=None):
                                  "results/bench/scene_profile.csv")
     ap.add_argument("--out", default=str(OUT), help="CSV of the table")
     a = ap.parse_args(argv)
+    from analysis.atomic_dir import OutputError, atomic_file
+    try:
+        check_out(a.out)
+    except OutputError as exc:
+        print("analysis.bench.profile: error: %s" % exc, file=sys.stderr)
+        return 2
     parts = []
     with tempfile.TemporaryDirectory(prefix="bench-profile-") as tmp:
         for case, cfg in CASES.items():
@@ -86,12 +102,14 @@ def main(argv=None):
             piv = t.pivot_table(index="engine", columns="state",
                                 values=["share", "us_per_step"], sort=False)
             print(piv.to_string(float_format=lambda x: "%.3f" % x))
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_out = out.with_suffix(".tmp")
-    pd.concat(parts, ignore_index=True).to_csv(tmp_out, index=False)
-    tmp_out.replace(out)
-    print("wrote %s" % out)
+    try:
+        out = check_out(a.out)              # again: it may have appeared during the runs
+    except OutputError as exc:
+        print("analysis.bench.profile: error: %s" % exc, file=sys.stderr)
+        return 2
+    with atomic_file(out) as tmp_out:
+        pd.concat(parts, ignore_index=True).to_csv(tmp_out, index=False)
+    print("wrote %s" % a.out)
     return 0
 
 

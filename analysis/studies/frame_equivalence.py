@@ -6,7 +6,9 @@ The lab-frame runs are the Table-3 loop's anchor runs (results/loop/paper_table3
 :mod:`analysis.flights` (v_in, e_app, impact phase) and the motion modes, each as the
 difference of the 3-seed means over its standard error (the two frames' replicate scatters
 combined). The wall time per run of each frame is read from the recordings' meta.json where
-they exist on this machine. Writes ``results/studies/frame_equivalence.csv`` and ``.md``.
+they exist on this machine. Writes ``results/studies/frame_equivalence.csv`` and ``.md``
+(``--out`` is their prefix; both follow the project's file rule before any run - never a file
+this study did not write, never its input - and are written atomically).
 
     python -m analysis.studies.frame_equivalence [--workers 2]
 """
@@ -27,6 +29,21 @@ from analysis.report import frame_equivalence_page
 LAB_RUNS = RESULTS_DIR / "loop" / "paper_table3"
 OUT = RESULTS_DIR / "studies" / "frame_equivalence"
 COMPARED = ("v_mean_m_s", "f_col_hz", "v_in_m_s", "e_app", "impact_phase_rad")
+#: the first columns of the table and the title of the page (how the study knows its own files)
+TABLE_HEAD = ("condition_id", "n_lab", "n_jar", "modes_lab", "modes_jar")
+PAGE_TITLE = "# Jar frame against lab frame"
+
+
+def check_outputs(out, lab_dir=LAB_RUNS):
+    """``out``.csv and ``out``.md under the file rule (raises
+    :class:`analysis.atomic_dir.OutputError`); returns the two paths."""
+    from analysis.atomic_dir import check_out_file, own_csv, own_text
+    out = Path(out)
+    csv = check_out_file(out.with_suffix(".csv"), [lab_dir],
+                         is_own=own_csv(TABLE_HEAD, prefix=True), flag="--out")
+    md = check_out_file(out.with_suffix(".md"), [lab_dir], is_own=own_text(PAGE_TITLE),
+                        flag="--out")
+    return csv, md
 
 
 def lab_configs(lab_dir=LAB_RUNS):
@@ -99,6 +116,12 @@ def main(argv=None):
                     help="start positions per condition and frame [seeds] (default "
                     "%(default)s: the Table-3 anchor's lab runs; more are run in both frames)")
     a = ap.parse_args(argv)
+    from analysis.atomic_dir import OutputError, atomic_file
+    try:
+        check_outputs(a.out)
+    except OutputError as exc:
+        print("frame_equivalence: error: %s" % exc, file=sys.stderr)
+        return 2
     lab, cfgs = lab_configs()
     if a.seeds > 3:
         first = {}
@@ -135,13 +158,18 @@ def main(argv=None):
     for c in ("v_in_m_s", "e_app", "impact_phase_rad"):
         jar[c] = fl[c].to_numpy(float)
     tab = compare(lab, jar)
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tab.to_csv(out.with_suffix(".csv"), index=False)
     wl, wj = wall_times(lab["run_id"]), wall_times(jar["run_id"])
     n_seeds = int(lab.groupby("condition_id").size().min())
     text = frame_equivalence_page(tab, wl, wj, n_seeds, COMPARED)
-    out.with_suffix(".md").write_text(text)
+    try:
+        csv, md = check_outputs(a.out)      # again: they may have appeared during the runs
+    except OutputError as exc:
+        print("frame_equivalence: error: %s" % exc, file=sys.stderr)
+        return 2
+    with atomic_file(csv) as tmp:
+        tab.to_csv(tmp, index=False)
+    with atomic_file(md) as tmp:
+        tmp.write_text(text)
     print("\n".join(text.split("\n")[:5]))
     return 0
 

@@ -7,6 +7,9 @@ against the committed signature library without running YADE (8 twin runs, about
 cores, saved from every ``make test``).
 
     python -m analysis.studies.hidden_blind_data [--out results/hidden_blind] [--workers 2]
+
+Each dataset folder and truth file follows the project's output rule before any run
+(:func:`analysis.hidden.check_outputs`): only what this project wrote is ever replaced.
 """
 from __future__ import annotations
 
@@ -43,6 +46,14 @@ def main(argv=None):
                     help="parallel twin runs [processes] (default %(default)s)")
     a = ap.parse_args(argv)
     from pathlib import Path
+    from analysis.atomic_dir import OutputError
+    from analysis.hidden import check_outputs
+    try:
+        for name in CASES:
+            check_outputs(name, Path(a.out) / name, Path(a.out) / "truth")
+    except OutputError as exc:
+        print("hidden_blind_data: error: %s" % exc, file=sys.stderr)
+        return 2
     for name in CASES:
         ds, truth = make(name, Path(a.out), a.workers)
         print("wrote %s (truth %s)" % (ds, truth))

@@ -10,6 +10,10 @@ a ball+jar track per condition and yields; the truth (effects, base parameters) 
 Example::
 
     python -m analysis.studies.open_world_data --only null_a --workers 2
+
+Every dataset folder and truth file it would write (films included) follows the project's
+output rule before any run (:func:`analysis.hidden.check_outputs`): only what this project
+wrote is ever replaced; a truth file is written atomically.
 """
 from __future__ import annotations
 
@@ -178,8 +182,12 @@ def make_film_copy(name, out_dir=OUT_DIR, seed=0, progress=True):
         path = write_dataset(film, out_dir / (name + "_film"), overwrite=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    from analysis.atomic_dir import atomic_file
+    from analysis.hidden import check_outputs
+    _, truth_file = check_outputs(name + "_film", out_dir / (name + "_film"), out_dir / "truth")
     t = dict(truth, name=name + "_film")
-    (out_dir / "truth" / ("%s_film.truth.json" % name)).write_text(json.dumps(t, indent=1))
+    with atomic_file(truth_file) as tmp_file:
+        tmp_file.write_text(json.dumps(t, indent=1))
     return path
 
 
@@ -207,16 +215,26 @@ def main(argv=None):
                     "effects in turn, strengths drawn, base parameters from the posterior) "
                     "[datasets]")
     a = ap.parse_args(argv)
-    for name in [c for c in (a.only or sorted(CASES)) if c != "none"]:
+    from analysis.atomic_dir import OutputError
+    from analysis.hidden import check_outputs
+    named = [c for c in (a.only or sorted(CASES)) if c != "none"]
+    films = [f for f in (a.films if a.films is not None else ["visco"]) if f != "none"]
+    drawn = {**null_cases(a.nulls), **effect_cases(a.effects), **pair_cases(a.pairs)}
+    out = Path(a.out)
+    try:                                    # every folder and truth file before any run
+        for name in named + list(drawn) + ["%s_film" % f for f in films]:
+            check_outputs(name, out / name, out / "truth")
+    except OutputError as exc:
+        print("open_world_data: error: %s" % exc, file=sys.stderr)
+        return 2
+    for name in named:
         ds, truth = make(name, a.out, a.workers)
         print("wrote %s (truth %s)" % (ds, truth))
-    for name, case in {**null_cases(a.nulls), **effect_cases(a.effects),
-                       **pair_cases(a.pairs)}.items():
+    for name, case in drawn.items():
         ds, truth = make(name, a.out, a.workers, case=case)
         print("wrote %s (truth %s)" % (ds, truth))
-    for name in (a.films if a.films is not None else ["visco"]):
-        if name != "none":
-            print("wrote %s" % make_film_copy(name, a.out))
+    for name in films:
+        print("wrote %s" % make_film_copy(name, a.out))
     return 0
 
 

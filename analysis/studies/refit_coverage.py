@@ -7,7 +7,9 @@ and :func:`analysis.loop.twin_corrected_refits` run on it: twin reruns at the fi
 (``--rerun-replicates`` seeds per condition, fresh seeds) and refits of the model shifted onto
 them. Each dataset's result is written to ``<out>/<dataset>.json`` when it is done (a killed
 study resumes there); ``summary.csv`` and ``README.md`` hold the strengths before and after
-with the coverage of their 95 % intervals.
+with the coverage of their 95 % intervals. ``--out`` follows the project's folder rule before
+any run (:func:`analysis.atomic_dir.check_out_dir`: never an input, never a folder holding
+files this study did not write); every file is written atomically and the folder is marked.
 
 Example::
 
@@ -93,6 +95,14 @@ def summary_rows(results) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def check_out(out, loops, datasets, names=()):
+    """The folder rule for ``--out`` (raises :class:`analysis.atomic_dir.OutputError`): an
+    unmarked folder is taken as this study's own when it holds only its files."""
+    from analysis.atomic_dir import check_out_dir
+    own = ["%s.json" % n for n in names] + ["summary.csv", "README.md"]
+    return check_out_dir(out, [loops, datasets], own_names=own)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.studies.refit_coverage "
@@ -111,9 +121,20 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2,
                     help="parallel twin runs [processes] (default %(default)s)")
     a = ap.parse_args(argv)
+    from analysis.atomic_dir import MARKER, OutputError, atomic_file
     loops, dsets, out = Path(a.loops), Path(a.datasets), Path(a.out)
+    try:
+        if not loops.is_dir():
+            raise OutputError("--loops %s is not a folder of loop outputs" % a.loops)
+        names = sorted(p.name for p in loops.iterdir() if (p / "loop.json").is_file())
+        check_out(out, loops, dsets, names)
+    except OutputError as exc:
+        print("refit_coverage: error: %s" % exc, file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
-    names = sorted(p.name for p in loops.iterdir() if (p / "loop.json").is_file())
+    if not (out / MARKER).exists():
+        (out / MARKER).write_text("written by the mill twin project; a rerun may replace "
+                                  "this folder\n")
     results = []
     for name in names:
         if a.only and name not in a.only:
@@ -126,14 +147,15 @@ def main(argv=None):
             r = refit_one(name, loops, dsets, rerun_replicates=a.rerun_replicates,
                           max_refits=a.max_refits, workers=a.workers,
                           log=lambda s: print(s, file=sys.stderr, flush=True))
-            tmp = f.with_suffix(".tmp")
-            tmp.write_text(json.dumps(r, indent=1))
-            tmp.replace(f)
+            with atomic_file(f) as tmp:
+                tmp.write_text(json.dumps(r, indent=1))
         results.append(json.loads(f.read_text()))
     t = summary_rows(results)
-    t.to_csv(out / "summary.csv", index=False)
+    with atomic_file(out / "summary.csv") as tmp:
+        t.to_csv(tmp, index=False)
     text = refit_coverage_page(t)
-    (out / "README.md").write_text(text)
+    with atomic_file(out / "README.md") as tmp:
+        tmp.write_text(text)
     print("\n".join(text.split("\n")[:3]))
     return 0
 

@@ -5,6 +5,10 @@ signature library, recompute its impact observables, or print it.
 
     python -m analysis.twin_model --build [--replicates 2] [--workers 2]   # the library
     python -m analysis.twin_model --flights      # impact observables of its cached runs
+
+``--out`` follows the project's folder rule before any run (:func:`analysis.atomic_dir.
+check_out_dir`): ``--build`` replaces, and ``--flights`` rewrites files in, only a library
+folder this project wrote (or one in ``results/``).
 """
 from __future__ import annotations
 
@@ -32,6 +36,13 @@ def main(argv=None):
                     help="recompute the impact observables of the library's (and the "
                     "calibration's) cached runs; no new twin runs")
     a = ap.parse_args(argv)
+    if a.build or a.flights:
+        from analysis.atomic_dir import OutputError, check_out_dir
+        try:
+            check_out_dir(a.out)
+        except OutputError as exc:
+            print("analysis.twin_model: error: %s" % exc, file=sys.stderr)
+            return 2
     if a.flights and not a.build:
         try:
             summ = refresh_flights(a.out)
