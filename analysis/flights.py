@@ -384,10 +384,13 @@ def main(argv=None):
         else:
             if a.frequency_hz is None:
                 raise FlightError("a track needs --frequency-hz")
+            # the checked reader of analysis.observe: a byte-order mark, gaps (empty x_m,
+            # y_m) and numbers implausible in seconds and metres (a track in mm) refused
+            from analysis.observe import ObserveError, read_track
             try:
-                tr = pd.read_csv(p)
-            except Exception as exc:
-                raise FlightError(f"{p}: unreadable CSV ({exc})") from None
+                tr = read_track(p)
+            except ObserveError as exc:
+                raise FlightError(str(exc)) from None
             res = flight_observables_frame(tr, a.frequency_hz, source=str(p))
     except (FlightError, ValueError, OSError) as exc:
         print("analysis.flights: error: %s" % exc, file=sys.stderr)

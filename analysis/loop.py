@@ -1313,6 +1313,8 @@ def _main(argv=None):
         base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
         extra = optional_effects(a.with_effect, base_config)
         ds = load_dataset(a.dataset)
+        for line in ds.warnings:            # accepted, but outside what the twin is tested on
+            print("analysis.loop: warning: %s" % line, file=sys.stderr)
         physics_table(ds.conditions)
         if a.v_rel_sd is not None:
             ds = with_assumed_v_sd(ds, a.v_rel_sd)

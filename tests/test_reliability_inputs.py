@@ -271,6 +271,11 @@ ROWS = [
     ("observe-gaps-accepted", "observe", _gaps([20, 21, 22, 300]), 0, [],
      ["gap_fraction", "0.0093"]),
     ("observe-bom-accepted", "observe", _bom(TRACK), 0, [], ["v_mean_m_s", "f_col_hz"]),
+    # flights reads its track through observe's checked reader
+    ("flights-track-in-mm", "flights", _track(lambda t: t.assign(
+        x_m=t.x_m * 1e3, y_m=t.y_m * 1e3)), 2, ["f25_d20.6.csv", "'x_m'", "in mm?"], []),
+    ("flights-bom-and-gaps-accepted", "flights", lambda d: (_gaps([20, 21])(d), _bom(TRACK)(d)),
+     0, [], ["v_in_m_s"]),
     # the loop's impact observables read a gap track too
     ("flights-gaps-accepted", "call", _call_dataset_gaps_flights, None,
      ["impact observables from a track with gaps: 5"], []),
@@ -313,7 +318,7 @@ def test_input(tool, prep, rc, err_words, out_words, ds, tmp_path, base_track):
     else:
         prep(ds)
         argv = (["analysis.measurements", str(ds)] if tool == "measurements"
-                else ["analysis.observe", str(ds / TRACK), "--frequency-hz", "25"])
+                else ["analysis.%s" % tool, str(ds / TRACK), "--frequency-hz", "25"])
     before = _snapshot(tmp_path)
     proc = _run(argv)
     after = _snapshot(tmp_path)
@@ -378,3 +383,17 @@ def test_every_committed_dataset_still_loads():
     assert any(d == PAPER_TABLE3_DIR for d in found)
     for d in found:
         m.load_dataset(d)
+
+
+def test_the_loop_prints_the_dataset_warnings_in_the_dry_run(ds, tmp_path):
+    """A frequency outside the tested 3-35 Hz: the loop says so after reading the dataset,
+    one line per warning, the dry run included (and still plans, exit 0)."""
+    _cell("conditions.csv", "frequency_hz", 1, "40")(ds)
+    _cell("conditions.csv", "frequency_hz", 2, "2.5")(ds)
+    proc = _run(["analysis.loop", "--dataset", str(ds), "--out", str(tmp_path / "lo"),
+                 "--dry-run", "--fake"])
+    assert proc.returncode == 0, proc.stderr
+    warn = [ln for ln in proc.stderr.splitlines() if ln.startswith("analysis.loop: warning: ")]
+    assert len(warn) == 2, proc.stderr
+    assert "40 Hz" in warn[0] and "row 1" in warn[0] and "2.5 Hz" in warn[1]
+    assert "Traceback" not in proc.stderr and not (tmp_path / "lo").exists()
