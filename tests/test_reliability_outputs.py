@@ -728,3 +728,43 @@ def test_the_other_writers_accept_their_own_earlier_output(work):
     assert jar.check_out(REPO_ROOT / "geometry" / "mm400_25ml.stl")   # the committed jar
     assert jar.main(["--out", str(work / "foreign.csv")]) == 2
     assert (work / "foreign.csv").read_text() == "x,y\n1,2\n"
+
+
+def _python(code):
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=60, cwd=str(REPO_ROOT))
+
+
+def test_ctrl_c_while_the_package_loads_is_one_line_and_130():
+    """The package's own handler (python -m analysis.<command>, before the command's module
+    runs): one line ``analysis: interrupted``, exit 130. Simulated: argv[0] is '-m' while the
+    package is imported, then SIGINT arrives before any module of the command runs."""
+    proc = _python("import sys; sys.argv[0] = '-m'\n"
+                   "import analysis, os, signal, time\n"
+                   "os.kill(os.getpid(), signal.SIGINT)\n"
+                   "time.sleep(5)\nprint('not interrupted')")
+    assert proc.returncode == 130, (proc.returncode, proc.stderr)
+    assert proc.stderr.strip().splitlines() == ["analysis: interrupted"], proc.stderr
+    assert proc.stdout == ""
+
+
+def test_the_package_handler_hands_ctrl_c_back_once_the_command_runs():
+    """Once the command's module runs (``__main__`` has its spec), Ctrl-C is Python's
+    KeyboardInterrupt again, so each command's own handling applies; imported any other way
+    (here, the test process) the package installs nothing."""
+    import analysis
+    proc = _python("import sys; sys.argv[0] = '-m'\n"
+                   "import analysis, os, signal, time\n"
+                   "assert signal.getsignal(signal.SIGINT) is analysis._interrupted_at_start\n"
+                   "sys.modules['__main__'].__spec__ = object()\n"
+                   "try:\n    os.kill(os.getpid(), signal.SIGINT); time.sleep(5)\n"
+                   "except KeyboardInterrupt:\n"
+                   "    print('KeyboardInterrupt',\n"
+                   "          signal.getsignal(signal.SIGINT) is signal.default_int_handler)\n")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["KeyboardInterrupt", "True"], proc.stdout + proc.stderr
+    assert signal.getsignal(signal.SIGINT) is not analysis._interrupted_at_start
+    plain = _python("import analysis, signal\n"
+                    "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)")
+    assert plain.stdout.strip() == "True", plain.stderr
