@@ -393,12 +393,14 @@ def emulator_share(model: EmulatedTwin, observations, points) -> np.ndarray:
 
 def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_waves,
                    per_wave, replicates=3, seed=0, base_config=None, log=print,
-                   obs_chaos_runs=1.0, stop_share=None, best=None):
+                   obs_chaos_runs=1.0, stop_share=None, best=None, replicate_seed0=500):
     """Run wave 0 and up to ``n_waves`` refinement waves through ``simulate(runs) -> runs``
     (adds the observables to a table of configs, e.g. the twin through the sweep); fit
     ``model`` after each. With ``stop_share`` and ``best`` (callable(model) -> points, e.g. the
     calibrated point and each candidate's best fit) the waves stop once the emulator's share of
     the uncertainty there (:func:`emulator_share`) is below ``stop_share`` at every point.
+    The reference point ``model.theta_ref`` runs with seeds from ``replicate_seed0`` (the
+    chaos); every design point with seed ``seed`` (wave w: ``seed + w``).
     Returns (model, points, {wave: fractions not ruled out})."""
     space = model.space
     pts = initial_design(space, n_initial, seed)
@@ -407,7 +409,7 @@ def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_
     runs = pd.concat([design_runs(space, pts, model.conditions, seeds=(seed,),
                                   base_config=base_config),
                       design_runs(space, ref, model.conditions,
-                                  seeds=range(seed + 1000, seed + 1000 + replicates),
+                                  seeds=range(replicate_seed0, replicate_seed0 + replicates),
                                   base_config=base_config)], ignore_index=True)
     runs["wave"] = 0
     log("wave 0: %d points + the reference point x %d seeds, %d runs"
