@@ -348,17 +348,20 @@ def stacked_prediction(model: EmulatedTwin, points: pd.DataFrame) -> Prediction:
 
 
 def wave_points(model: EmulatedTwin, observations, existing, n_points, seed, *,
-                obs_chaos_runs=1.0):
+                obs_chaos_runs=1.0, rotate=0):
     """The next wave: half its points where the data are plausible with no effect, the rest
-    split over the candidate effects (each free in turn). Returns (points, {free effect or
-    'none': fraction not ruled out})."""
+    split over the candidate effects (each free in turn; ``rotate`` - the wave's number -
+    shifts which effects come first, so that waves with fewer points than effects reach them
+    all). Returns (points, {free effect or 'none': fraction not ruled out})."""
     space = model.space
     obs = observation_table(model, observations)
     groups = [None] + [c.name for c in space.effects]
     share = [max(1, n_points // 2)] + [0] * len(space.effects)
     rest = n_points - share[0]
+    if not space.effects:
+        share[0], rest = n_points, 0
     for k in range(rest):
-        share[1 + k % len(space.effects)] += 1
+        share[1 + (k + rotate * rest) % len(space.effects)] += 1
     new, fracs = [], {}
     have = existing
     for g, n in zip(groups, share):
@@ -425,7 +428,7 @@ def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_
                     "where the fits lie" % (w - 1, float(np.max(share))))
                 break
         new, fracs = wave_points(model, observations, pts, per_wave, seed + 17 * w,
-                                 obs_chaos_runs=obs_chaos_runs)
+                                 obs_chaos_runs=obs_chaos_runs, rotate=w - 1)
         history[w] = fracs
         log("wave %d: %d points; not ruled out: %s" % (w, len(new), ", ".join(
             "%s %.1f %%" % (k, 100 * v) for k, v in fracs.items())))

@@ -7,7 +7,8 @@ _COLS = ["output", "n", "rmse", "rel_rmse_pct", "coverage95", "mean_z2"]
 
 
 def emulator_check_page(leave_out, heldout, *, n_runs, n_points, replicates, dataset,
-                        heldout_dir, fake=False, n_planned=None):
+                        heldout_dir, fake=False, n_planned=None, by_role=None,
+                        by_effect=None):
     """README.md of the study folder."""
     lines = ["# The one emulator of the twin against real twin runs", ""]
     if fake:
@@ -35,6 +36,14 @@ def emulator_check_page(leave_out, heldout, *, n_runs, n_points, replicates, dat
                   "anchor, one-at-a-time base responses and effect levels), predicted one by "
                   "one." % heldout_dir, ""]
         lines += frame_table_lines(heldout, hcols)
+        if by_role is not None:
+            lines += ["", "By the loop's role of the run (`anchor`: the loop's start point; "
+                      "`base`: one base parameter a step away; `effect`: one effect on at the "
+                      "anchor; `heldout_by_role.csv`):", ""]
+            lines += frame_table_lines(by_role, ["observable", "role"] + hcols[1:])
+        if by_effect is not None:
+            lines += ["", "The effect runs by effect (every observable):", ""]
+            lines += frame_table_lines(by_effect, ["name"] + hcols[1:])
         lines += ["", "![held-out runs](emulator_check.png)"]
     return "\n".join(lines) + "\n"
 

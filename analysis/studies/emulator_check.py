@@ -193,13 +193,24 @@ def check(ems, X_ho, runs_ho, bounds):
     return pd.DataFrame(rows)
 
 
-def summarise(per_run):
-    g = per_run.groupby("observable")
+def summarise(per_run, by=("observable",)):
+    """n, rmse, coverage95 and mean z^2 per group of held-out runs."""
+    g = per_run.groupby(list(by))
     return pd.DataFrame({"n": g.size(),
                          "rmse": g.apply(lambda d: float(np.sqrt(np.mean((d.twin - d.predicted)
                                                                          ** 2)))),
                          "coverage95": g.apply(lambda d: float(np.mean(np.abs(d.z) <= 1.96))),
                          "mean_z2": g.apply(lambda d: float(np.mean(d.z ** 2)))})
+
+
+def _rel(path):
+    """A path as the repository sees it (no absolute paths on a committed page)."""
+    from analysis.config import REPO_ROOT
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(Path(REPO_ROOT).resolve()))
+    except ValueError:
+        return Path(path).name
 
 
 def main(argv=None):
@@ -254,11 +265,15 @@ def main(argv=None):
         rep = em.loo_report(groups=runs["point"].to_numpy()[idx]).reset_index()
         lo_rows.append(rep)
     leave_out = pd.concat(lo_rows, ignore_index=True)
-    heldout, per_run = None, None
+    heldout, per_run, by_role, by_effect = None, None, None, None
     if a.heldout and (Path(a.heldout) / "model_runs.csv").is_file():
         X_ho, runs_ho = heldout_runs(a.heldout, space)
         per_run = check(ems, X_ho, runs_ho, bounds)
         heldout = summarise(per_run).reset_index() if len(per_run) else None
+        if heldout is not None:
+            eff = per_run[per_run["role"] == "effect"]
+            by_role = summarise(per_run, ("observable", "role")).reset_index()
+            by_effect = summarise(eff, ("name",)).reset_index() if len(eff) else None
     from analysis.plotting.emulator_plots import emulator_check_figure
     from analysis.report.emulator_pages import emulator_check_page
     with output_dir(a.out, protected=(a.dataset,)) as tmp:
@@ -267,10 +282,13 @@ def main(argv=None):
         if heldout is not None:
             heldout.to_csv(tmp / "heldout.csv", index=False, float_format="%.5g")
             per_run.to_csv(tmp / "heldout_runs.csv", index=False, float_format="%.6g")
+            by_role.to_csv(tmp / "heldout_by_role.csv", index=False, float_format="%.5g")
         emulator_check_figure(per_run, tmp / "emulator_check.png", fake=a.fake)
         (tmp / "README.md").write_text(emulator_check_page(
-            leave_out, heldout, n_runs=len(runs), n_planned=n_planned, n_points=a.points, replicates=a.replicates,
-            dataset=a.dataset, heldout_dir=a.heldout, fake=a.fake))
+            leave_out, heldout, n_runs=len(runs), n_planned=n_planned, n_points=a.points,
+            replicates=a.replicates, dataset=_rel(a.dataset), heldout_dir=_rel(a.heldout),
+            fake=a.fake, by_role=by_role if heldout is not None else None,
+            by_effect=by_effect if heldout is not None else None))
     print(leave_out.to_string(index=False))
     if heldout is not None:
         print(heldout.to_string(index=False))
