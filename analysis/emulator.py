@@ -1,4 +1,4 @@
-"""The one Gaussian-process emulator of the twin: (parameters, effect strengths, conditions) -> outputs.
+"""The one GP emulator of the twin: (parameters, effect strengths, conditions) -> outputs.
 
 One scikit-learn ``GaussianProcessRegressor`` per output. Inputs are scaled to the centred unit
 cube [-0.5, 0.5] from declared bounds; outputs are normalised (``log_outputs`` are modelled as

@@ -95,21 +95,14 @@ def main(argv=None):
                                        "--dataset results/open_world/effects/eff_p01")
     p.add_argument("--dataset", default=str(DEFAULT_DATASET), help="a blind dataset folder "
                    "(default %(default)s)")
-    p.add_argument("--points", type=int, default=24, help="wave-0 design points [-] "
-                   "(default %(default)s)")
+    from analysis.studies.emulator_check import add_design_options
+    add_design_options(p)
     p.add_argument("--waves", type=int, default=2, help="refinement waves [-] "
                    "(default %(default)s)")
     p.add_argument("--per-wave", type=int, default=8, help="design points per refinement "
                    "wave [-] (default %(default)s)")
-    p.add_argument("--replicates", type=int, default=3, help="seeds of the reference and the "
-                   "confirmation point [-] (default %(default)s)")
     p.add_argument("--null-draws", type=int, default=10, help="bootstrap datasets per "
                    "diagnosis step [-] (default %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="design seed [-] (default %(default)s)")
-    p.add_argument("--workers", type=int, default=2, help="parallel twin runs [-]")
-    p.add_argument("--frame", default="auto", choices=("lab", "jar", "auto"),
-                   help="the scene's frame (default %(default)s)")
-    p.add_argument("--fake", action="store_true", help="the analytic stand-in (FAKE)")
     p.add_argument("--out", default=None, help="output folder (default "
                    "results/studies/emulated_loop/<dataset>)")
     a = p.parse_args(argv)
@@ -134,8 +127,9 @@ def main(argv=None):
         params.to_csv(tmp / "parameters.csv", index=False, float_format="%.6g")
         rows["runs"].drop(columns=["config"]).to_csv(tmp / "runs.csv", index=False,
                                                     float_format="%.6g")
+        from analysis.studies.emulator_check import rel_path
         (tmp / "README.md").write_text(emulated_loop_page(
-            dataset=a.dataset, words=words, staircase=rows["staircase"], params=params,
+            dataset=rel_path(a.dataset), words=words, staircase=rows["staircase"], params=params,
             n_runs=len(rows["runs"]), waves=rows["waves"], wall_s=time.time() - t0,
             fake=a.fake))
     print("\n".join(words))
@@ -199,7 +193,8 @@ def run(ds, a):
     model.theta_ref = {k: v for k, v in theta.items() if k in model.theta_ref}
     model.fit(pd.concat([model.runs_, conf], ignore_index=True))
     w = _Wrapped(model, added, theta)
-    _, final2 = calibrate_base(w.predict, obs, _base_params(model, theta, added), model_se=w.model_se())
+    _, final2 = calibrate_base(w.predict, obs, _base_params(model, theta, added),
+                               model_se=w.model_se())
     stair.append(stage_row("final (emulator refitted with the confirmation runs)", "model",
                            final2, nb + len(added)))
     truth = truth_of(a.dataset) or {}

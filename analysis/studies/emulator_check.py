@@ -203,7 +203,22 @@ def summarise(per_run, by=("observable",)):
                          "mean_z2": g.apply(lambda d: float(np.mean(d.z ** 2)))})
 
 
-def _rel(path):
+def add_design_options(p):
+    """The wave-0 design's options, shared with :mod:`analysis.studies.emulated_loop` (the
+    same defaults make the same runs: the second study reads the first's from the cache)."""
+    p.add_argument("--points", type=int, default=24, help="wave-0 design points [-] "
+                   "(default %(default)s)")
+    p.add_argument("--replicates", type=int, default=3, help="seeds of the reference point "
+                   "[-] (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="design seed [-] (default %(default)s)")
+    p.add_argument("--workers", type=int, default=2, help="parallel twin runs [-]")
+    p.add_argument("--frame", default="auto", choices=("lab", "jar", "auto"),
+                   help="the scene's frame (default %(default)s: the jar frame, 1.7-1.9x "
+                        "faster, unless an effect needs the lab's)")
+    p.add_argument("--fake", action="store_true", help="the analytic stand-in (FAKE), for tests")
+
+
+def rel_path(path):
     """A path as the repository sees it (no absolute paths on a committed page)."""
     from analysis.config import REPO_ROOT
     p = Path(path).resolve()
@@ -223,16 +238,7 @@ def main(argv=None):
                    "the design runs at (default %(default)s)")
     p.add_argument("--heldout", default=str(DEFAULT_HELDOUT), help="a loop folder with "
                    "model_runs.csv at the same conditions (default %(default)s)")
-    p.add_argument("--points", type=int, default=24, help="wave-0 design points [-] "
-                   "(default %(default)s)")
-    p.add_argument("--replicates", type=int, default=3, help="seeds of the reference point [-] "
-                   "(default %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="design seed [-] (default %(default)s)")
-    p.add_argument("--workers", type=int, default=2, help="parallel twin runs [-]")
-    p.add_argument("--frame", default="auto", choices=("lab", "jar", "auto"),
-                   help="the scene's frame (default %(default)s: the jar frame, 1.7-1.9x "
-                        "faster, unless an effect needs the lab's)")
-    p.add_argument("--fake", action="store_true", help="the analytic stand-in (FAKE), for tests")
+    add_design_options(p)
     p.add_argument("--cached-only", action="store_true", help="start no twin run: analyse "
                    "the study's runs already in the cache")
     p.add_argument("--out", default=str(DEFAULT_OUT), help="output folder")
@@ -286,7 +292,7 @@ def main(argv=None):
         emulator_check_figure(per_run, tmp / "emulator_check.png", fake=a.fake)
         (tmp / "README.md").write_text(emulator_check_page(
             leave_out, heldout, n_runs=len(runs), n_planned=n_planned, n_points=a.points,
-            replicates=a.replicates, dataset=_rel(a.dataset), heldout_dir=_rel(a.heldout),
+            replicates=a.replicates, dataset=rel_path(a.dataset), heldout_dir=rel_path(a.heldout),
             fake=a.fake, by_role=by_role if heldout is not None else None,
             by_effect=by_effect if heldout is not None else None))
     print(leave_out.to_string(index=False))
