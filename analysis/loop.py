@@ -138,7 +138,7 @@ def fit_observations(obs, model):
     return with_run_sd(obs, model.flight_run_sd())
 
 
-class _Wrapped:
+class WithAdded:
     """The model with the effects already added as fitted parameters (forward selection):
     ``predict(theta, eff)`` reads the added strengths from ``theta``."""
 
@@ -178,7 +178,7 @@ class _Wrapped:
         return np.sqrt(np.maximum(full ** 2 - have ** 2, 0.0))
 
 
-def _base_params(model, theta, added):
+def fitted_parameters(model, theta, added):
     """BaseParameters at the current values: the model's, then the added effects' strengths."""
     out = []
     for p in model.base_params():
@@ -201,7 +201,7 @@ class _Corrected:
     levels - is gone there. Keys the rerun does not predict (the priors) keep the model's."""
 
     def __init__(self, model, points, scale, added):
-        self.w = _Wrapped(model, added)               # the strengths read from theta
+        self.w = WithAdded(model, added)               # the strengths read from theta
         self.scale = dict(scale)
         self.names = list(self.scale)
         self.pts, self.deltas = [], []
@@ -289,8 +289,8 @@ def joint_fit(model, obs, theta, added):
     """The base parameters and the added effects' strengths fitted together on ``model``
     (the strengths read from the parameters; the model's noise plus the effects' resolution
     error): a FitResult."""
-    w = _Wrapped(model, added, theta)
-    _, fit = calibrate_base(w.predict, obs, _base_params(model, theta, added),
+    w = WithAdded(model, added, theta)
+    _, fit = calibrate_base(w.predict, obs, fitted_parameters(model, theta, added),
                             model_se=w.model_se())
     return fit
 
@@ -414,7 +414,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
     nulls = []
     nb = len(model.base_params())
     for step in range(1, max_effects + 2):
-        w = _Wrapped(model, added, theta)
+        w = WithAdded(model, added, theta)
         kinds = {e.name: e.kind for e in model.effects()}
         kin_in = any(kinds.get(k) == "kinetics" for k in added)
         # kinetics effects replace the yield law: one at a time (they do not compose)
@@ -422,7 +422,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                 and not (kin_in and e.kind == "kinetics")]
         if not effs:
             break
-        diag = diagnose(w.predict, obs, _base_params(model, theta, added), effs,
+        diag = diagnose(w.predict, obs, fitted_parameters(model, theta, added), effs,
                         model_se=w.model_se(),
                         crn_correlation=getattr(model, "crn_correlation", 0.0),
                         conditions=conditions,
@@ -432,7 +432,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         t.insert(0, "step", step)
         t["threshold_scale"] = 1.0
         if diag.best is not None and null_draws:
-            c, nm, nf = null_scale(diag, w, obs, _base_params(model, theta, added), effs,
+            c, nm, nf = null_scale(diag, w, obs, fitted_parameters(model, theta, added), effs,
                                    n_draws=null_draws, alpha=alpha, conditions=conditions,
                                    noise_observables=noise_observables, seed=step)
             nulls.append({"step": step, "scale": c, "null_max_delta_chi2": nm,
@@ -510,7 +510,7 @@ def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
             break
         points.append((dict(theta, **added), pred))
         corr = _Corrected(model, points, scale, added)
-        fit = corr.fit(obs, se, _base_params(model, theta, added))
+        fit = corr.fit(obs, se, fitted_parameters(model, theta, added))
         moved = corr.moved(fit)
         refits.append({"refit": it + 1, "moved_se": moved, "chi2_dof": fit.chi2_dof,
                        **{k: float(fit.params[k]) for k in added}})

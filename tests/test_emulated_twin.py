@@ -139,9 +139,9 @@ def test_forward_selection_names_the_hidden_effect_and_covers_it(built):
     assert abs(s - built["s_true"]) < 1.96 * se + 1e-9, (s, se, built["s_true"])
     # the profile-likelihood interval on the emulator (its sd in the likelihood) covers too
     from analysis.diagnose import profile_interval
-    from analysis.loop import _Wrapped, _base_params
-    w = _Wrapped(m, fs["added"], fs["theta"])
-    iv = profile_interval(w.predict, obs, _base_params(m, fs["theta"], fs["added"]),
+    from analysis.loop import WithAdded, fitted_parameters
+    w = WithAdded(m, fs["added"], fs["theta"])
+    iv = profile_interval(w.predict, obs, fitted_parameters(m, fs["theta"], fs["added"]),
                           "rolling_resistance", fit, model_se=w.model_se())
     assert iv.lower <= built["s_true"] <= iv.upper, iv
     assert iv.upper - iv.lower < 4.5 * se, (iv, se)

@@ -686,7 +686,7 @@ def test_shifted_model_carries_the_rerun_means_noise_not_the_extrapolation():
     m = loop._ShiftedModel(Stub(), corrected=None, rerun_replicates=3)
     for r in (0.35, 0.25, 0.45):
         assert list(m.model_se({"restitution": r})) == [0.01, 0.0]
-    w = loop._Wrapped(m, {}, {"restitution": 0.25})
+    w = loop.WithAdded(m, {}, {"restitution": 0.25})
     assert list(w.model_se()) == [0.01, 0.0]
     m12 = loop._ShiftedModel(Stub(), corrected=None, rerun_replicates=12)
     assert m12.model_se()[("a", "v_mean_m_s")] == pytest.approx(0.005)

@@ -143,7 +143,7 @@ def run(ds, a):
     from analysis.catalog import candidates
     from analysis.diagnose import calibrate_base, profile_interval
     from analysis.emulated_twin import EmulatedTwin, build_in_waves
-    from analysis.loop import _base_params, _Wrapped, fit_observations, forward_select
+    from analysis.loop import WithAdded, fit_observations, fitted_parameters, forward_select
     from analysis.studies.emulator_check import design_space, run_plan
     from analysis.twin_model import dataset_observations, reference_parameters, yield_times_of
     base_config = None if a.frame == "lab" else {"frame": a.frame}
@@ -166,7 +166,7 @@ def run(ds, a):
     noise = {"v_mean_m_s", "f_col_hz"} | (set(FLIGHT_OBSERVABLES) if fl_ids else set())
 
     def analyse(model):
-        w = _Wrapped(model, {})
+        w = WithAdded(model, {})
         baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
                                        model_se=w.model_se())
         theta = {p.name: cal.params[p.name] for p in model.base_params()}
@@ -192,8 +192,8 @@ def run(ds, a):
     # the confirmation runs are design points: refit the emulator, the final fit on it
     model.theta_ref = {k: v for k, v in theta.items() if k in model.theta_ref}
     model.fit(pd.concat([model.runs_, conf], ignore_index=True))
-    w = _Wrapped(model, added, theta)
-    _, final2 = calibrate_base(w.predict, obs, _base_params(model, theta, added),
+    w = WithAdded(model, added, theta)
+    _, final2 = calibrate_base(w.predict, obs, fitted_parameters(model, theta, added),
                                model_se=w.model_se())
     stair.append(stage_row("final (emulator refitted with the confirmation runs)", "model",
                            final2, nb + len(added)))
@@ -201,7 +201,7 @@ def run(ds, a):
     true_base = truth.get("base_config", {})
     from analysis.open_suite import truth_strengths
     true_eff = truth_strengths(truth) if truth else {}
-    bp = _base_params(model, {k: final2.params[k] for k in theta},
+    bp = fitted_parameters(model, {k: final2.params[k] for k in theta},
                       {k: final2.params[k] for k in added})
     prm = []
     for q in bp:
