@@ -139,9 +139,16 @@ def response_levels(p, ref, step=None) -> tuple:
     return tuple(min(max(float("%.4g" % v), lo), hi) for v in (down, up))
 
 
-def run_wall_s(base_config=None) -> float:
-    """The planner's wall time per run for runs with ``base_config`` (its frame)."""
-    return RUN_WALL_S_JAR if (base_config or {}).get("frame") in ("jar", "auto") else RUN_WALL_S
+def run_wall_s(base_config=None, runs_dir=None) -> float:
+    """The planner's wall time per run for runs with ``base_config`` (its frame): the median
+    of this machine's own latest runs in that frame (:func:`analysis.sweep.cached_wall_s`:
+    the machine, its load and the scene as they are now), else the committed constants."""
+    from analysis.sweep import cached_wall_s
+    jar = (base_config or {}).get("frame") in ("jar", "auto")
+    measured = cached_wall_s("jar" if jar else "lab", runs_dir)
+    if measured is not None:
+        return measured
+    return RUN_WALL_S_JAR if jar else RUN_WALL_S
 
 
 #: base parameters fitted with a Gaussian prior (the Table-3 calibration's posterior mean and

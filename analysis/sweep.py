@@ -284,6 +284,42 @@ class SweepResult:
 
 # ----------------------------------------------------------------------------------------- runs
 
+#: the latest runs whose wall time :func:`cached_wall_s` takes the median of, and the fewest
+CACHED_WALL_RUNS, CACHED_WALL_MIN = 40, 5
+
+
+def cached_wall_s(frame, runs_dir=None):
+    """Median wall time [s] of the latest complete twin runs in the cache whose scene ran in
+    ``frame`` ('lab' or 'jar', meta.json's ``frame``; the FAKE twin's runs left out), or None
+    when fewer than CACHED_WALL_MIN are there."""
+    root = Path(runs_dir) if runs_dir is not None else RUNS_DIR
+    metas = []
+    try:
+        entries = list(os.scandir(root))
+    except OSError:
+        return None
+    for e in entries:
+        p = Path(e.path) / "meta.json"
+        try:
+            metas.append((p.stat().st_mtime, p))
+        except OSError:
+            continue
+    walls = []
+    for _, p in sorted(metas, reverse=True):
+        try:
+            m = json.loads(p.read_text())
+        except (OSError, ValueError):
+            continue
+        if m.get("frame", "lab") != frame or str(m.get("yade_version", "")).startswith("FAKE"):
+            continue
+        w = m.get("wall_s")
+        if isinstance(w, (int, float)) and w > 0:
+            walls.append(float(w))
+        if len(walls) >= CACHED_WALL_RUNS:
+            break
+    return float(pd.Series(walls).median()) if len(walls) >= CACHED_WALL_MIN else None
+
+
 def failed_path(runs_dir, rid):
     """Path of the failure record of run ``rid``."""
     return Path(runs_dir) / ("%s.failed.json" % rid)

@@ -211,3 +211,25 @@ def test_dead_worker_is_reported_and_retried_next_time(tmp_path):
     assert not list(runs.glob("*.failed.json"))      # cause unknown: not recorded as failed
     again = sweep.run_sweep(cfgs, runner=RUNNER, workers=2, runs_dir=runs, progress=False)
     assert again.ok and len(list(runs.glob("*/meta.json"))) == 4
+
+
+def test_cached_wall_s_is_the_median_of_the_latest_runs_in_the_frame(tmp_path):
+    import json
+    import os
+    from analysis.sweep import CACHED_WALL_MIN, cached_wall_s
+    assert cached_wall_s("lab", tmp_path) is None
+    for i in range(12):
+        d = tmp_path / ("run%02d" % i)
+        d.mkdir()
+        frame = "jar" if i % 2 else "lab"
+        fake = i == 10
+        (d / "meta.json").write_text(json.dumps(
+            {"frame": frame, "wall_s": 500.0 if fake else 10.0 + i,
+             "yade_version": "FAKE (analysis.fake_twin)" if fake else "2023.02a"}))
+        os.utime(d / "meta.json", (1e9 + i, 1e9 + i))
+    # lab runs 0, 2, 4, 6, 8 (10 is FAKE): median 14; jar runs 1, 3, 5, 7, 9, 11: median 16
+    assert cached_wall_s("lab", tmp_path) == 14.0
+    assert cached_wall_s("jar", tmp_path) == 16.0
+    assert CACHED_WALL_MIN == 5
+    (tmp_path / "run00" / "meta.json").unlink()
+    assert cached_wall_s("lab", tmp_path) is None          # 4 lab runs: too few

@@ -15,6 +15,7 @@ The temporary runs folder is deleted at the end (``--keep-runs DIR`` keeps them 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shutil
 import sys
@@ -56,6 +57,8 @@ def main(argv=None):
     else:
         runs = Path(tempfile.mkdtemp(prefix="bench-loop-cold-"))
     load = os.getloadavg()[0]
+    from analysis.open_model import run_wall_s
+    per_run_s = run_wall_s({"frame": a.frame})       # what the dry run would assume now
     lines = []
     try:
         times = []
@@ -69,6 +72,12 @@ def main(argv=None):
             lines.append("%s: %.1f min, %d new twin runs, status %s"
                          % (label, wall / 60, res.info["new_runs"], res.status))
             print(lines[-1], flush=True)
+            if label == "empty cache" and res.info["new_runs"]:
+                est = math.ceil(res.info["new_runs"] / a.workers) * per_run_s
+                lines.append("the dry run's estimate for these runs: %.1f min at %.1f s per run "
+                             "(%+.0f %% of the measured)" % (est / 60, per_run_s,
+                                                            100 * (est / wall - 1)))
+                print(lines[-1], flush=True)
     finally:
         if not a.keep_runs:
             shutil.rmtree(runs, ignore_errors=True)
