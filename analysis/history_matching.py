@@ -44,6 +44,8 @@ from analysis.parameter_space import SPACE
 CUTOFF = 3.0
 #: share of wave-0 points that switch one candidate effect on
 EFFECT_SHARE = 0.5
+#: fewest surviving candidates before a wave refocuses; centres and width of the cloud
+REFOCUS_MIN, REFOCUS_CENTRES, REFOCUS_SD = 64, 16, 0.03
 #: prefix of an effect strength's input name
 EFFECT_PREFIX = "effect:"
 
@@ -236,20 +238,54 @@ def next_wave(space: DesignSpace, predict, observations, existing: pd.DataFrame,
     (DataFrame of the new points, float - fraction of the candidates not ruled out)
     """
     cand = candidate_sample(space, n_candidates, seed, effects)
-    pred = predict(cand)
-    imp = implausibility(pred.mean, pred.latent_sd, pred.chaos_sd,
-                         observations["value"].to_numpy(float),
-                         observations["sd"].to_numpy(float), obs_chaos_runs)
+    obs, obs_sd = observations["value"].to_numpy(float), observations["sd"].to_numpy(float)
+
+    def score(c):
+        p = predict(c)
+        i = implausibility(p.mean, p.latent_sd, p.chaos_sd, obs, obs_sd, obs_chaos_runs)
+        return p, i
+
+    pred, imp = score(cand)
     keep = not_ruled_out(imp, cutoff, which)
     frac = float(keep.mean())
-    pool = cand[keep] if keep.any() else cand.iloc[np.argsort(np.max(imp, axis=1))[:64]]
+    if keep.sum() < max(REFOCUS_MIN, 4 * n_points):
+        # too few uniform candidates survive (a parameter the data pin sharply): refocus on a
+        # cloud about the least implausible ones, so that the wave's points come from the
+        # plausible region, not from the edge of what was ruled out
+        cloud = refocus_sample(space, cand, np.max(imp, axis=1), n_candidates, seed, effects)
+        p2, i2 = score(cloud)
+        cand = pd.concat([cand, cloud], ignore_index=True)
+        pred = type(pred)(*(np.vstack([a, b]) for a, b in zip(
+            (pred.mean, pred.latent_sd, pred.chaos_sd), (p2.mean, p2.latent_sd, p2.chaos_sd))))
+        imp = np.vstack([imp, i2])
+        keep = not_ruled_out(imp, cutoff, which)
+    order = np.argsort(np.max(imp, axis=1))
+    idx = np.flatnonzero(keep) if keep.sum() >= n_points else order[:max(64, n_points)]
+    pool = cand.iloc[idx]
     # weight: the emulator's largest sd relative to the observations' (where it is unsure)
-    sd_rel = (pred.latent_sd / np.maximum(observations["sd"].to_numpy(float)[None], 1e-30))
-    w = np.max(sd_rel[keep] if keep.any() else sd_rel[np.argsort(np.max(imp, 1))[:64]], axis=1)
+    sd_rel = pred.latent_sd[idx] / np.maximum(obs_sd[None], 1e-30)
+    w = np.max(sd_rel, axis=1)
     w = 0.5 + w / max(float(np.max(w)), 1e-30)
     picked = maximin_pick(space.scaled(pool), space.scaled(existing), n_points, w)
     new = pool.iloc[picked].reset_index(drop=True)
     return new, frac
+
+
+def refocus_sample(space: DesignSpace, cand: pd.DataFrame, imp_max, n, seed, effects=None):
+    """``n`` points in a Gaussian cloud (sd :data:`REFOCUS_SD` of each range) about the
+    :data:`REFOCUS_CENTRES` candidates of lowest largest implausibility, clipped to the box;
+    effects outside ``effects`` stay off."""
+    rng = np.random.default_rng(seed + 7919)
+    free = space.base_names + [effect_input(e) for e in (effects or [])]
+    b = space.bounds()
+    centres = cand.iloc[np.argsort(imp_max)[:REFOCUS_CENTRES]]
+    k = rng.integers(0, len(centres), n)
+    out = pd.DataFrame({c: np.zeros(n) for c in space.names})
+    for c in free:
+        lo, hi = b[c]
+        x = centres[c].to_numpy(float)[k] + REFOCUS_SD * (hi - lo) * rng.standard_normal(n)
+        out[c] = np.clip(x, lo, hi)
+    return out[space.names]
 
 
 def design_runs(space: DesignSpace, points: pd.DataFrame, conditions, *, seeds=(0,),

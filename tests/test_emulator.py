@@ -250,3 +250,25 @@ def test_waves_keep_the_truth_and_shrink_the_plausible_space():
     assert kept[exact].mean() >= 0.95, kept[exact].mean()
     with pytest.raises(ValueError, match="not an effect"):
         candidate_sample(space, 8, 0, effects=["powder_layer"])
+
+
+def test_a_wave_refocuses_where_the_data_pin_a_parameter_sharply():
+    """One observation pins the stroke to 0.1 % of its prior range: almost no uniform candidate
+    survives, and the wave's points come from a cloud about the least implausible ones - all
+    of them not ruled out, all near the pinned stroke."""
+    from analysis.emulator import Prediction
+    space = DesignSpace.of(("restitution", "amplitude_m"))
+
+    def predict(c):
+        a = c["amplitude_m"].to_numpy(float)[:, None]
+        r = c["restitution"].to_numpy(float)[:, None]
+        m = np.hstack([a, r])
+        return Prediction(m, np.zeros_like(m), np.zeros_like(m))
+
+    obs = pd.DataFrame({"value": [0.0131, 0.4], "sd": [2e-6, 0.05]})
+    pts, frac = next_wave(space, predict, obs, pd.DataFrame(columns=space.names), 6, seed=0,
+                          n_candidates=1024)
+    assert frac < 0.02
+    assert len(pts) == 6
+    assert np.all(np.abs(pts["amplitude_m"] - 0.0131) < 3 * 2e-6)
+    assert np.all(np.abs(pts["restitution"] - 0.4) < 3 * 0.05)
