@@ -423,8 +423,9 @@ def test_model_spec_takes_the_dict_contract_and_names_bad_keys():
 
 def test_profile_interval_covers_the_truth_as_often_as_it_claims():
     """A curved ridge (the strength trades with a base parameter through a product) on an
-    analytic model with known truth: over 120 noise draws the 95 % profile interval of the
-    strength covers the truth 89-99 % of the time; its ends are where -2 log L rose by 3.84."""
+    analytic model with known truth: over 80 noise draws the 95 % profile interval of the
+    strength covers the truth 87.5-99 % of the time (3 binomial sd below 95 %); its ends are
+    where -2 log L rose by 3.84."""
     from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
     x = np.linspace(0.0, 1.0, 12)
     keys = pd.MultiIndex.from_tuples([("c%d" % i, "y") for i in range(len(x))],
@@ -437,7 +438,7 @@ def test_profile_interval_covers_the_truth_as_often_as_it_claims():
     truth = {"a": 1.0, "s": 0.6}
     rng = np.random.default_rng(3)
     sd = 0.02
-    hits, n = 0, 120
+    hits, n = 0, 80
     for k in range(n):
         obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
                             "value": predict(truth).to_numpy() + sd * rng.standard_normal(
@@ -449,6 +450,6 @@ def test_profile_interval_covers_the_truth_as_often_as_it_claims():
         if k == 0:
             assert iv.lower < fit.params["s"] < iv.upper
             assert not iv.open_lower and not iv.open_upper
-    assert 0.89 * n <= hits <= 0.99 * n, hits
+    assert 0.875 * n <= hits <= 0.99 * n, hits
     with pytest.raises(ValueError, match="not a fitted parameter"):
         profile_interval(predict, obs, base, "b", fit)
