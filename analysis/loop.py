@@ -1342,7 +1342,7 @@ def _main(argv=None):
                       "(%.0f s per run)" % ("anchor + base responses" if stage == "base"
                                             else "with the effect responses", ps["runs"],
                                             ps["cached"], ps["new"], ps["est_wall_s"] / 60,
-                                            a.workers, run_wall_s(base_config)))
+                                            a.workers, run_wall_s(base_config, runs_dir)))
             lo, hi = rerun_runs(len(ds.conditions), rerun=not a.no_rerun,
                                 replicates=a.rerun_replicates, max_refits=a.max_refits)
             if lo:
@@ -1355,7 +1355,7 @@ def _main(argv=None):
             print("total: %d runs, %d new (up to %d), about %.0f min on %d worker(s); each "
                   "re-anchoring (at most %d) adds a build" % (
                       ps["runs"] + lo, ps["new"] + lo, ps["new"] + hi,
-                      math.ceil((ps["new"] + lo) / w) * run_wall_s(base_config) / 60,
+                      math.ceil((ps["new"] + lo) / w) * run_wall_s(base_config, runs_dir) / 60,
                       a.workers, a.max_reanchor))
             return 0
         res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,

@@ -345,7 +345,7 @@ class OpenTwinModel(TwinModel):
         new = len(uniq) - cached
         w = max(int(self.sweep_kw["workers"] or 1), 1)
         return {"runs": len(uniq), "cached": cached, "new": new,
-                "est_wall_s": math.ceil(new / w) * run_wall_s(self.base_config)}
+                "est_wall_s": math.ceil(new / w) * run_wall_s(self.base_config, root)}
 
     # ------------------------------------------------------------------ build
     def fit(self, stage="all"):
