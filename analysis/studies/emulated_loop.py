@@ -219,10 +219,10 @@ def run(ds, a):
             prm.append({"name": k, "role": "hidden, not found", "value": 0.0, "truth": s})
     params = pd.DataFrame(prm)
     steps = pd.concat(fs["steps"], ignore_index=True) if fs["steps"] else pd.DataFrame()
-    words = ["verdict: " + (fs["diagnoses"][-1].verdict if fs["diagnoses"] else "-"),
-             "effects added: %s" % (", ".join("%s %.3g" % kv for kv in added.items())
-                                     or "none"),
-             "hidden: %s" % (", ".join("%s %.3g" % kv for kv in true_eff.items()) or "none")]
+    words = ["step %d: %s" % (i + 1, d.verdict) for i, d in enumerate(fs["diagnoses"])]
+    words += [
+        "effects added: %s" % (", ".join("%s %.3g" % kv for kv in added.items()) or "none"),
+        "hidden: %s" % (", ".join("%s %.3g" % kv for kv in true_eff.items()) or "none")]
     runs = model.runs_
     return ({"staircase": pd.DataFrame(stair), "runs": runs, "waves": hist}, steps, params,
             words)
