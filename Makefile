@@ -50,7 +50,7 @@ yade:
 	fi
 
 test: setup
-	$(VPY) -m pytest -q tests
+	$(VPY) -m pytest -q -n 2 tests
 
 test-fast: venv
 	$(VPY) -m pytest -q -m "not yade and not slow" tests
