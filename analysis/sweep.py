@@ -305,7 +305,8 @@ def cached_wall_s(frame, runs_dir=None):
         except OSError:
             continue
     walls = []
-    for _, p in sorted(metas, reverse=True):
+    # the latest few times as many as needed, at most: a cache of FAKE runs is not read whole
+    for _, p in sorted(metas, reverse=True)[:4 * CACHED_WALL_RUNS]:
         try:
             m = json.loads(p.read_text())
         except (OSError, ValueError):
@@ -1242,12 +1243,6 @@ def build_parser():
 YADE_TABLE_HEAD = "# yade-batch parameter table written by analysis.sweep"
 
 
-def _is_own_yade_table(path) -> bool:
-    try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            return fh.readline().startswith(YADE_TABLE_HEAD)
-    except OSError:
-        return False
 
 
 def check_outputs(out=None, yade_table=None, inputs=()):
@@ -1255,12 +1250,12 @@ def check_outputs(out=None, yade_table=None, inputs=()):
     ``--out`` table and ``--export-yade-table``, before any run: never an input (the parameter
     table, the sweep config), never an existing file that is not this command's own earlier
     output (a sweep table: its status columns first; a yade-batch table: its header line)."""
-    from analysis.atomic_dir import check_out_file, own_csv
+    from analysis.atomic_dir import check_out_file, own_csv, own_text
     inputs = [p for p in inputs if p]
     if out:
         check_out_file(out, inputs, is_own=own_csv(STATUS_COLUMNS, prefix=True), flag="--out")
     if yade_table:
-        check_out_file(yade_table, inputs, is_own=_is_own_yade_table,
+        check_out_file(yade_table, inputs, is_own=own_text(YADE_TABLE_HEAD),
                        flag="--export-yade-table")
 
 
