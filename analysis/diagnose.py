@@ -969,6 +969,11 @@ def calibrate_base(predict, observations, base_params, *, model_se=None,
     return prob.stage(theta0), prob.fit(theta0)
 
 
+#: a profile interval's end is found to this fraction of its bracketing step (the fit's se, at
+#: least 1 % of the range): 2 % of an se is far below what the interval's own coverage resolves
+PROFILE_TOL_STEPS = 0.02
+
+
 @dataclass(frozen=True)
 class ProfileInterval:
     """A profile-likelihood interval of one fitted parameter.
@@ -1044,7 +1049,7 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
                 # bisection on the signs seen (each inner fit starts where the last ended, so
                 # a point's value may differ slightly between two calls: no re-evaluation)
                 for _ in range(40):
-                    if abs(b - a) <= 1e-4 * step:
+                    if abs(b - a) <= PROFILE_TOL_STEPS * step:
                         break
                     c = 0.5 * (a + b)
                     if rise(c) >= 0:

@@ -162,26 +162,42 @@ class EmulatedTwin:
                             random_state=self.seed)
             self.emulators_[o] = em.fit(X[ok], pd.DataFrame({o: y[ok]}))
         self.runs_ = runs.reset_index(drop=True)
+        self._memo = {}
         return self
 
     # ------------------------------------------------------------------ predictions
-    def _inputs(self, points: pd.DataFrame) -> pd.DataFrame:
-        """Every point at every condition (points outer): emulator input rows."""
+    def _inputs(self, points) -> np.ndarray:
+        """Every point (a DataFrame with the space's names, or an array in their order) at
+        every condition (points outer): emulator input rows in the order of :meth:`bounds`."""
+        P = (points[self.space.names].to_numpy(float) if isinstance(points, pd.DataFrame)
+             else np.atleast_2d(np.asarray(points, float)))
         n_c = len(self._X_cond)
-        rows = {n: np.repeat(points[n].to_numpy(float), n_c) for n in self.space.names}
-        for c in CONDITION_INPUTS:
-            rows[c] = np.tile(self._X_cond[c].to_numpy(float), len(points))
-        stated = self.conditions.get("amplitude_mm")
-        if stated is not None and "amplitude_m" in rows:
-            a = np.tile(stated.to_numpy(float) * 1e-3, len(points))
-            rows["amplitude_m"] = np.where(np.isfinite(a), a, rows["amplitude_m"])
-        return pd.DataFrame(rows)[list(self.bounds())]
+        if getattr(self, "_template", None) is None:
+            cols = list(self.bounds())
+            self._cols = [cols.index(n) for n in self.space.names]
+            t = np.zeros((n_c, len(cols)))
+            for c in CONDITION_INPUTS:
+                t[:, cols.index(c)] = self._X_cond[c].to_numpy(float)
+            stated = self.conditions.get("amplitude_mm")
+            self._stated = None
+            if stated is not None and "amplitude_m" in self.space.names:
+                a = stated.to_numpy(float) * 1e-3
+                if np.isfinite(a).any():
+                    self._stated = (cols.index("amplitude_m"), np.isfinite(a), a)
+            self._template = t
+        X = np.tile(self._template, (len(P), 1))
+        X[:, self._cols] = np.repeat(P, n_c, axis=0)
+        if self._stated is not None:
+            j, ok, a = self._stated
+            okk = np.tile(ok, len(P))
+            X[okk, j] = np.tile(a, len(P))[okk]
+        return X
 
-    def dem_parts(self, points: pd.DataFrame, sd=True) -> dict:
+    def dem_parts(self, points, sd=True) -> dict:
         """{observable: Prediction of shape (n_points, n_conditions)} (``sd=False``: the means
-        only, the sds zero - what a fit's many calls need)."""
+        only, the sds zero)."""
         X = self._inputs(points)
-        n_p, n_c = len(points), len(self._X_cond)
+        n_p, n_c = len(X) // len(self._X_cond), len(self._X_cond)
         out = {}
         for o, em in self.emulators_.items():
             if not sd:
@@ -195,15 +211,29 @@ class EmulatedTwin:
                                   for a in (p.mean, p.latent_sd, p.chaos_sd)))
         return out
 
+    def point_vector(self, theta, effects=None) -> np.ndarray:
+        """One design point as an array in the order of ``space.names`` (base parameters from
+        ``theta``, the rest theta_ref's; DEM effect strengths of the space, others ignored)."""
+        v = [float(theta.get(n, self.theta_ref[n])) for n in self.space.base_names]
+        eff = {effect_input(k): float(s) for k, s in (effects or {}).items()}
+        v += [eff.get(n, 0.0) for n in self.space.effect_names]
+        return np.array(v)
+
     def point(self, theta, effects=None) -> pd.DataFrame:
-        """One design point from base parameters (``theta``, the rest theta_ref's) and effect
-        strengths (only DEM effects of the space; others ignored)."""
-        row = {n: float(theta.get(n, self.theta_ref[n])) for n in self.space.base_names}
-        row.update({n: 0.0 for n in self.space.effect_names})
-        for k, s in (effects or {}).items():
-            if effect_input(k) in row:
-                row[effect_input(k)] = float(s)
-        return pd.DataFrame([row])
+        """One design point (a one-row DataFrame of the space's names)."""
+        return pd.DataFrame([self.point_vector(theta, effects)], columns=self.space.names)
+
+    def _parts_at(self, theta, effects):
+        """dem_parts (with sds) at one point, remembered: a fit asks for the mean and the sd
+        at the same point, one after the other."""
+        v = self.point_vector(theta, effects)
+        key = v.tobytes()
+        hit = self._memo.get(key)
+        if hit is None:
+            if len(self._memo) >= 512:
+                self._memo.clear()
+            hit = self._memo[key] = self.dem_parts(v[None, :])
+        return hit
 
     def _assemble(self, parts, theta, effects, which):
         """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
@@ -234,10 +264,16 @@ class EmulatedTwin:
                 out += [getattr(parts[o], which)[0][i] for o in self.flight_obs]
         return pd.Series(out, index=self.keys, dtype=float)
 
+    @property
+    def _kin(self):
+        if getattr(self, "_kin_cands", None) is None:
+            from analysis.catalog import candidates
+            self._kin_cands = candidates("kinetics")
+        return self._kin_cands
+
     def _kinetics(self, theta, effects):
         from analysis.kinetics import PAPER_SLOPE_PCT_PER_KJ
-        from analysis.catalog import candidates
-        kin = candidates("kinetics")
+        kin = self._kin
         on = [k for k, s in (effects or {}).items() if k in kin and s]
         if len(on) > 1:
             raise ValueError("kinetics effects do not compose: %s" % on)
@@ -249,8 +285,7 @@ class EmulatedTwin:
                 float(theta.get("intercept_pct", 0.0)))
 
     def _check_effects(self, effects):
-        from analysis.catalog import candidates
-        kin = candidates("kinetics")
+        kin = self._kin
         unknown = [k for k in (effects or {}) if effect_input(k) not in self.space.effect_names
                    and k not in kin]
         if unknown:
@@ -259,14 +294,12 @@ class EmulatedTwin:
     def predict(self, theta, effects=None) -> pd.Series:
         """The twin's mean response by (condition_id, observable)."""
         self._check_effects(effects)
-        parts = self.dem_parts(self.point(theta, effects), sd=False)
-        return self._assemble(parts, theta, effects, "mean")
+        return self._assemble(self._parts_at(theta, effects), theta, effects, "mean")
 
     def model_se(self, theta=None, effects=None) -> pd.Series:
         """The emulator's sd of the twin's mean response at ``theta`` (default theta_ref)."""
         theta = dict(theta or self.theta_ref)
-        parts = self.dem_parts(self.point(theta, effects))
-        return self._assemble(parts, theta, effects, "latent_sd")
+        return self._assemble(self._parts_at(theta, effects), theta, effects, "latent_sd")
 
     def resolution_se(self, effects) -> pd.Series:
         """Zero: the emulator's sd with effects on is part of :meth:`model_se` at the point

@@ -2,38 +2,46 @@
 
     python -m analysis.loop --dataset DIR --out DIR [--budget-runs N] [--dry-run]
 
-1. **Read** the dataset (``docs/dataset_format.md``; a bad file is one error naming file, row and
+The loop runs as stages over one typed state (:class:`LoopState`; its choices in
+:class:`LoopSettings`), on ONE model of the twin: :class:`analysis.emulated_twin.EmulatedTwin`,
+Gaussian-process emulators of every observable over the base parameters, every candidate
+effect's strength jointly and the conditions, fitted to every twin run made for the dataset.
+
+1. **read** the dataset (``docs/dataset_format.md``; a bad file is one error naming file, row and
    column). Conditions are matched by physics (frequency, ball, stroke where stated), never by
-   their ids; the velocity frame is honoured (a 'jar' dataset is compared with the twin's
-   jar-frame speed); tracks that carry the jar (``jar_x_m``) add the impact observables.
-2. **Build the model at the dataset's conditions** (:class:`analysis.open_model.OpenTwinModel`):
-   the plan (runs, how many are cached, estimated wall time) is printed first and checked
-   against ``--budget-runs``; twin runs are cached by run id, so a killed loop resumes.
-3. **Calibrate** the base parameters (restitution, stroke, the frictions where they move the
-   observables) on the dataset. Where the calibrated point lies beyond the model's measured
-   responses, **re-anchor** there (new anchor and responses) and calibrate again. The anchor
-   is settled on a scout build (anchor and base responses with fewer seeds, the first seeds
-   of the whole build's) before the effect responses (about half of the model's runs) are
-   built, so these are built once; a final point that leaves the responses after effects
-   were added re-anchors the whole model.
-4. **Diagnose and add, forward selection**: rank every candidate effect; when one is
-   significant, add it (its strength becomes a fitted parameter beside the base ones) and
-   diagnose again with the rest, until nothing more is significant (``--max-effects``).
-5. **Twin rerun**: the real twin at the final parameters with the effects found switched on
-   (fresh seeds), its chi2/dof beside the model's.
-6. **Write** one folder (atomically; only a folder this project wrote is ever replaced):
+   their ids; the velocity frame is honoured; tracks that carry the jar (``jar_x_m``) add the
+   impact observables; films are tracked first.
+2. **build** the model in waves (:func:`analysis.emulated_twin.build_in_waves`): wave 0 a
+   Latin hypercube over the base parameters' priors with one candidate effect on in half its
+   points, and the reference point with ``--replicates`` seeds (the twin's chaos per
+   condition); then ``--waves`` waves of ``--per-wave`` points where the data are plausible
+   (history matching), with no effect and each effect free in turn. The plan (runs, cached,
+   from the committed run table, new, wall time) is printed first and checked against
+   ``--budget-runs``; twin runs are cached by run id, so a killed loop resumes.
+3. **calibrate** the base parameters (restitution, stroke, the frictions) on the emulator,
+   its own uncertainty in the likelihood where each fit asks.
+4. **diagnose and add**, forward selection: rank every candidate effect; add the best one
+   that beats the bootstrap-calibrated threshold; diagnose the rest again (``--max-effects``).
+5. **confirm**: the twin itself at the final point with the effects found (fresh seeds,
+   ``--rerun-replicates`` per condition); these runs join the training runs (they are design
+   points too), the emulator is refitted and the final fit redone on it; a final point that
+   moves by more than :data:`CONFIRM_TOL_SE` standard errors gets its own rerun
+   (``--confirm-rounds``).
+6. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator.
+7. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
    ========================  ==================================================================
    ``report.md``             the verdict in words, the staircase, the parameters, figures
    ``diagnosis.csv``         one row per candidate: effect, kind, rank, significant, strength,
                              strength_se, delta_chi2, p_bonferroni, identifiable, step
    ``staircase.csv``         stage, chi2, dof, chi2_dof (baseline, calibrated, + each effect,
-                             twin rerun)
+                             twin rerun, refitted on the twin reruns)
    ``steps.csv``             every diagnosis step's full ranking (column ``step``)
-   ``parameters.csv``        name, role (base / effect / held), value, se
+   ``parameters.csv``        name, role (base / effect), value, se, profile_lo, profile_hi
    ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z
-   ``model_runs.csv``        every twin run the model used (role, name, value, condition, seed,
-                             run_id, observables); ``rerun_runs.csv`` the twin rerun's
+   ``model_runs.csv``        every twin run the model was fitted to (wave, point, condition_id,
+                             seed, run_id, the design inputs, the observables)
+   ``rerun_runs.csv``        the confirmation runs at the final point (also in model_runs.csv)
    ``loop.json``             verdict, status, effects found, run counts, wall times
    ``tracking.csv``,         (a dataset with films) each film's tracking quality: frames,
    ``tracks/<id>.csv``       lost frames, re-acquisitions, scale; the tracks made from them
@@ -43,7 +51,7 @@
 Example::
 
     python -m analysis.loop --dataset data/measurements/paper_table3 \\
-        --out results/loop/paper_table3 --budget-runs 400
+        --out results/loop/paper_table3
 """
 from __future__ import annotations
 
@@ -77,31 +85,60 @@ from analysis.atomic_dir import OutputError, check_out_dir, output_dir
 from analysis.conditions import ConditionError, label, physics_table
 from analysis.diagnose import BaseParameter, calibrate_base, diagnose
 from analysis.measurements import DatasetError, load_dataset
-from analysis.open_model import BudgetError, OpenTwinModel, run_wall_s
 from analysis.sweep import parse_key_value
 from analysis.twin_model import (CANDIDATES, candidates, dataset_observations,
-                                 reference_parameters,
-                                 with_run_sd, yield_times_of)
+                                 reference_parameters, with_run_sd, yield_times_of)
+from analysis.twin_runs import BudgetError, TwinRuns
 
 #: candidate effects beyond this many are not added (a guard against chasing noise)
 MAX_EFFECTS = 3
-#: re-anchorings of the model at a calibrated point beyond its measured responses
-MAX_REANCHOR = 2
-#: the scout build that settles the anchor before the whole model is built: anchor seeds and
-#: seeds per response level (the first seeds of the whole build's, so none is wasted when the
-#: anchor stays)
-SCOUT_REPLICATES, SCOUT_DIFF_REPLICATES = 2, 1
-#: twin-corrected refits after the first twin rerun (each moved point gets its own rerun)
-MAX_POLISH = 2
-#: a twin-corrected refit that moves no parameter by more than this many of its standard
-#: errors ends the refits
-POLISH_TOL_SE = 0.5
-#: the secant of two reruns corrects the model's slope only over a move longer than this many
-#: standard errors (over a shorter one the difference of two rerun means is mostly their noise:
-#: with 2 seeds a 1-se move turned a visco-elastic strength back from 0.43 to 0.40, truth 0.49)
-SECANT_MIN_MOVE_SE = 2.0
 #: two candidates whose -2 log L gains differ by less than this are "about as good"
 TIE_DELTA_CHI2 = 2.0
+#: the base parameters the loop calibrates (declared in analysis.parameter_space)
+DEFAULT_BASE = ("restitution", "amplitude_m", "static_friction", "rolling_friction")
+#: a refit on the emulator with the confirmation runs that moves no parameter by more than
+#: this many of its standard errors ends the confirmation rounds
+CONFIRM_TOL_SE = 0.5
+#: seeds of the confirmation runs: round r uses CONFIRM_SEED0 + r * replicates onwards (fresh
+#: seeds, never the design's)
+CONFIRM_SEED0 = 100
+
+
+@dataclass
+class LoopSettings:
+    """The loop's choices (the command's options; see ``python -m analysis.loop --help``)."""
+
+    alpha: float = 0.01              # family-wise level of each diagnosis step [-]
+    max_effects: int = MAX_EFFECTS   # most effects added [-]
+    null_draws: int = 20             # bootstrap datasets per step [-]
+    points: int = 24                 # wave-0 design points [-]
+    replicates: int = 3              # seeds of the reference point (the chaos) [-]
+    waves: int = 2                   # refinement waves [-]
+    per_wave: int = 8                # design points per refinement wave [-]
+    rerun: bool = True               # the twin at the final point
+    rerun_replicates: int = 3        # its seeds per condition [-]
+    confirm_rounds: int = 2          # most reruns at moved final points [-]
+    intervals: bool = True           # profile-likelihood intervals
+    seed: int = 0                    # design seed [-]
+    flights: bool = True             # impact observables from jar tracks
+    extra_effects: tuple = ()        # optional catalog entries diagnosed too
+
+    def check(self):
+        """ValueError naming the first setting the loop cannot run with."""
+        for name in ("points", "replicates"):
+            if getattr(self, name) < 2:
+                raise ValueError("--%s must be >= 2, got %d" % (name, getattr(self, name)))
+        for name in ("per_wave", "rerun_replicates", "confirm_rounds"):
+            if getattr(self, name) < 1:
+                raise ValueError("--%s must be >= 1, got %d"
+                                 % (name.replace("_", "-"), getattr(self, name)))
+        for name in ("waves", "null_draws", "max_effects"):
+            if getattr(self, name) < 0:
+                raise ValueError("--%s must be >= 0, got %d"
+                                 % (name.replace("_", "-"), getattr(self, name)))
+        if not (math.isfinite(self.alpha) and 0.0 < self.alpha < 1.0):
+            raise ValueError("--alpha must lie in (0, 1), got %g" % self.alpha)
+        return self
 
 
 @dataclass
@@ -191,88 +228,6 @@ def fitted_parameters(model, theta, added):
     return out
 
 
-class _Corrected:
-    """The model shifted onto the twin's own means at the points it was rerun at:
-    predict(p) = model(p) + delta(p), delta_k = rerun(P_k) - model(P_k) at the last point,
-    and along the last move (P_k-1 -> P_k, in units of the fit's standard errors ``scale``)
-    the secant of the two deltas (a rank-one Broyden correction of the model's slope along
-    the direction it was wrong in). The model's error at P_k - the effects' responses were
-    measured at the anchor, not at the fitted base parameters, and are interpolated between
-    levels - is gone there. Keys the rerun does not predict (the priors) keep the model's."""
-
-    def __init__(self, model, points, scale, added):
-        self.w = WithAdded(model, added)               # the strengths read from theta
-        self.scale = dict(scale)
-        self.names = list(self.scale)
-        self.pts, self.deltas = [], []
-        for p, pred in points:
-            at = self.w.predict(dict(p))
-            self.pts.append(np.array([p[k] for k in self.names], float))
-            self.deltas.append((pred.reindex(at.index) - at).fillna(0.0))
-        self.p = dict(points[-1][0])
-        self.step = None
-        if len(self.pts) >= 2:
-            d = (self.pts[-1] - self.pts[-2]) / np.array([self.scale[k] for k in self.names])
-            if float(d @ d) > SECANT_MIN_MOVE_SE ** 2:   # a shorter secant is the reruns' noise
-                self.step = d / float(d @ d)
-
-    def predict(self, theta, effects=None):
-        p = dict(theta, **(effects or {}))
-        y = self.w.predict(theta, effects) + self.deltas[-1]
-        if self.step is not None:
-            x = np.array([p.get(k, v) for k, v in zip(self.names, self.pts[-1])], float)
-            t = float(((x - self.pts[-1]) / np.array([self.scale[k] for k in self.names]))
-                      @ self.step)
-            y = y + t * (self.deltas[-1] - self.deltas[-2])
-        return y
-
-    def fit(self, obs, rerun_se, start):
-        """Base parameters and added strengths refitted on the shifted model, its noise the
-        rerun mean's standard error (0 for the priors)."""
-        se = rerun_se.reindex(self.deltas[-1].index).fillna(0.0)
-        _, fit = calibrate_base(self.predict, obs, start, model_se=se)
-        return fit
-
-    def moved(self, fit) -> float:
-        """Largest move of a parameter from the last point, in its standard errors."""
-        out = 0.0
-        for k, v in self.p.items():
-            se = float(fit.stderr.get(k, np.nan))
-            if np.isfinite(se) and se > 0:
-                out = max(out, abs(float(fit.params[k]) - v) / se)
-        return out
-
-
-class _ShiftedModel:
-    """A model whose predict is a :class:`_Corrected` one (shifted onto twin reruns at the
-    calibrated point); effect resolution, parameters and effects are the model's. Diagnosis on
-    it asks which effect is missing from the twin itself, not from the model's approximation
-    of it.
-
-    Its noise is the rerun mean's: near the rerun point the prediction IS the mean of
-    ``rerun_replicates`` twin runs there, not the model's extrapolation from its anchor, whose
-    base responses carry their own noise away from it (1.6 restitution steps off the anchor
-    that noise made the sigmas 1.7 times too large and every chi2 gain 0.4 times as large).
-    It is the anchor mean's standard error (the replicate sd pooled over all the model's
-    groups of seeds, a steadier estimate than one rerun's three seeds) for ``rerun_replicates``
-    seeds."""
-
-    def __init__(self, model, corrected, rerun_replicates=None):
-        self._model = model
-        self._corr = corrected
-        self._se_scale = (1.0 if rerun_replicates is None else
-                          math.sqrt(float(model.replicates) / float(rerun_replicates)))
-
-    def predict(self, theta, effects=None):
-        return self._corr.predict(theta, effects)
-
-    def model_se(self, theta=None):
-        return self._model.model_se() * self._se_scale
-
-    def __getattr__(self, name):
-        return getattr(self._model, name)
-
-
 def rerun_score(obs, pred, se, final, n_params) -> dict:
     """chi2 of the data against a twin rerun's means (the priors' pseudo-observations at the
     fit's values), sigma = hypot(measured sd, the rerun mean's se)."""
@@ -295,71 +250,12 @@ def joint_fit(model, obs, theta, added):
     return fit
 
 
-def refit_start(model, diag_model, obs, theta_model, added):
-    """Where the final twin-corrected refits start when the diagnosis ran on a corrected model
-    (``diag_model`` is not ``model``) and added effects: the base parameters and the added
-    strengths fitted jointly on ``model`` itself from its own calibrated point ``theta_model``
-    (a FitResult). None otherwise (the refits start from the diagnosis's own fit)."""
-    if not added or diag_model is model:
-        return None
-    return joint_fit(model, obs, theta_model, added)
-
-
 def _stage_row(stage, fit, n_params):
     return {"stage": stage, "chi2": fit.chi2, "dof": fit.dof, "chi2_dof": fit.chi2_dof,
             "p_value": fit.p_value, "n_params": n_params}
 
 
-def twin_confirmation(without, with_effects, diags, added, nulls=()) -> dict | None:
-    """Does the twin confirm the effects the model added?
-
-    ``without`` and ``with_effects`` are fits of the model shifted onto the twin's reruns (the
-    twin-corrected fits at the calibrated point, and at the final point with ``added`` on).
-    The effects' chi2 gain there (the objective, -2 log likelihood) is set against what the
-    diagnosis asked of them at their steps (the Bonferroni threshold times the bootstrap's
-    scale, summed over the added effects; ``nulls`` are :func:`forward_select`'s 'null' rows,
-    one per bootstrapped step). None when either fit is missing or nothing was added.
-
-    Returns dict: gain_chi2, needed_chi2, confirmed (gain >= needed)."""
-    if without is None or with_effects is None or not added:
-        return None
-    scales = {int(n["step"]): float(n["scale"]) for n in nulls}
-    need = 0.0
-    for step, d in enumerate(diags, start=1):
-        if d.best in added:
-            scale = scales.get(step, 1.0)
-            need += float(d.threshold_delta_chi2) * (scale if np.isfinite(scale) else 1.0)
-    gain = float(without.objective - with_effects.objective)
-    return {"gain_chi2": gain, "needed_chi2": need, "confirmed": bool(gain >= need)}
-
-
-def rerun_table(dataset, theta, added, *, replicates, seed0, sweep_kw, base_config,
-                flight_ids, budget_runs=None):
-    """The twin itself at the final parameters with the added DEM effects on (fresh seeds):
-    its prediction per observable and its standard error, as a model with no responses."""
-    cands = candidates()
-    dem = {}
-    for name, s in added.items():
-        if cands[name].kind == "dem" and s > 0:
-            dem.update(cands[name].spec(s))
-    kin = {k: s for k, s in added.items() if cands[k].kind == "kinetics"}
-    cfg = dict(base_config or {})
-    if dem:
-        cfg["effects"] = dem
-    ref = {k: float("%.4g" % theta[k]) for k in ("restitution", "static_friction",
-                                                 "rolling_friction", "amplitude_m")}
-    m = OpenTwinModel(dataset.conditions, yield_times_of(dataset), theta_ref=ref, base=(),
-                      velocity_frame=dataset.velocity_frame, flight_conditions=flight_ids,
-                      replicates=replicates, diff_replicates=1, effect_names=(),
-                      base_config=cfg, seed0=seed0, budget_runs=budget_runs, **sweep_kw)
-    m.fit(stage="base")
-    th = dict(theta)
-    pred = m.predict(th, kin)
-    se = m.model_se(th)
-    return pred, se, m
-
-
-# --------------------------------------------------------------------------- the loop
+# --------------------------------------------------------------------------- selection
 
 def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observables,
                conditions, seed=0):
@@ -475,112 +371,62 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
             "last_fit": last_fit, "theta": theta, "null": nulls}
 
 
-def twin_corrected_refits(model, obs, theta, added, final, rerun_fn, *,
-                          max_refits=MAX_POLISH, tol_se=POLISH_TOL_SE, log=print) -> dict:
-    """Twin reruns at the fitted point and refits of the model shifted onto them.
+# --------------------------------------------------------------------------- the state
 
-    ``rerun_fn(theta, added) -> (prediction, se, runs)`` runs the twin at base parameters
-    ``theta`` with the effects ``added`` on (its means and their standard errors per key).
-    The model's strengths come from responses measured at its anchor; at a fitted point away
-    from it the effects interact with the base parameters (a visco-elastic contact slows the
-    ball less at a higher restitution) and the levels are interpolated, so the fitted strength
-    is biased by the model's error there. Each refit shifts the model onto the rerun's means at
-    the current point (:class:`_Corrected`) and fits again; a point that moved by more than
-    ``tol_se`` standard errors is rerun and refitted, at most ``max_refits`` times. A slope
-    error of the model by a factor r leaves (1 - r) of the strength's error per refit. The
-    standard errors of the last refit are scaled by sqrt(chi2/dof) where that exceeds 1 and
-    combined in quadrature with the last refit's step of each parameter (an unconverged
-    iteration is as uncertain as it still moves).
+@dataclass
+class LoopState:
+    """Everything the stages hand on: the dataset and its observations, the one model, the
+    fits of each stage and the twin's reruns."""
 
-    Returns dict: 'final' (FitResult), 'theta', 'added', 'rerun' (the last rerun's score:
-    prediction, z, chi2, dof, runs of every rerun), 'refits' (one row per refit), 'stairs'
-    (staircase rows: 'twin-corrected [n]', 'twin rerun')."""
-    nb = len(theta)
-    theta, added = dict(theta), dict(added)
-    refits, stairs, runs, points = [], [], [], []
-    corr = None
-    scale = {k: float(final.stderr.get(k, np.nan)) for k in list(theta) + list(added)}
-    scale = {k: v if np.isfinite(v) and v > 0 else 1.0 for k, v in scale.items()}
-    for it in range(max_refits + 1):
-        pred, se, r = rerun_fn(dict(theta), dict(added))
-        rr = rerun_score(obs, pred, se, final, nb + len(added))
-        runs.append(pd.DataFrame(r).assign(rerun=it + 1))
-        rr["runs"] = pd.concat(runs, ignore_index=True)
-        if it == max_refits:
-            break
-        points.append((dict(theta, **added), pred))
-        corr = _Corrected(model, points, scale, added)
-        fit = corr.fit(obs, se, fitted_parameters(model, theta, added))
-        moved = corr.moved(fit)
-        refits.append({"refit": it + 1, "moved_se": moved, "chi2_dof": fit.chi2_dof,
-                       **{k: float(fit.params[k]) for k in added}})
-        log("twin-corrected refit %d: %s (moved %.2f se), chi2/dof %.2f"
-            % (it + 1, _fmt_theta({k: fit.params[k] for k in list(theta) + list(added)}),
-               moved, fit.chi2_dof))
-        prev = dict(theta, **added)
-        theta = {k: float(fit.params[k]) for k in theta}
-        added = {k: float(fit.params[k]) for k in added}
-        # the se reported: the fit's, scaled up where the shifted model fits worse than its
-        # noise says, and combined with this refit's own step (the iteration's error is of
-        # the order of its last step; a converged refit barely adds to it)
-        birge = math.sqrt(max(1.0, float(fit.chi2_dof)))
-        se_eff = {k: float(np.hypot(birge * float(fit.stderr.get(k, np.nan)),
-                                    float(fit.params[k]) - prev[k]))
-                  for k in prev}
-        final = dataclasses.replace(fit, stderr=dict(fit.stderr, **se_eff))
-        refits[-1]["birge"] = birge
-        stairs.append(_stage_row("twin-corrected" if it == 0 else "twin-corrected %d"
-                                 % (it + 1), fit, nb + len(added)))
-        if moved < tol_se:
-            break
-    stairs.append({"stage": "twin rerun", "chi2": rr["chi2"], "dof": rr["dof"],
-                   "chi2_dof": rr["chi2"] / max(rr["dof"], 1),
-                   "p_value": float(stats.chi2.sf(rr["chi2"], max(rr["dof"], 1))),
-                   "n_params": nb + len(added)})
-    return {"final": final, "theta": theta, "added": added, "rerun": rr, "refits": refits,
-            "stairs": stairs, "corrected": corr if refits else None}
+    dataset: object
+    settings: LoopSettings
+    base_config: dict | None
+    obs0: pd.DataFrame               # the dataset's observations
+    flight_ids: list
+    model: object                    # EmulatedTwin
+    obs: pd.DataFrame | None = None  # what the fits see (impact sds floored at one run's)
+    waves: dict = field(default_factory=dict)
+    stair: list = field(default_factory=list)
+    baseline: object = None          # FitResult at the reference point
+    calibrated: object = None        # FitResult, base parameters fitted
+    selection: dict = field(default_factory=dict)   # forward_select's answer
+    theta: dict = field(default_factory=dict)       # base parameters at the final point
+    added: dict = field(default_factory=dict)       # effect -> strength, in the order added
+    final: object = None             # the last fit
+    reruns: list = field(default_factory=list)      # per round: point, runs, score, moved_se
+    intervals: dict = field(default_factory=dict)   # name -> ProfileInterval
+    tracking: pd.DataFrame | None = None
+    tracks: dict = field(default_factory=dict)
+
+    @property
+    def n_base(self):
+        return len(self.model.base_params())
 
 
-def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicates=2,
-             rerun=True, rerun_replicates=3, alpha=0.01, max_effects=MAX_EFFECTS,
-             max_reanchor=MAX_REANCHOR, max_polish=MAX_POLISH, budget_runs=None, base_config=None, runner=None,
-             workers=2, backend="local", runs_dir=None, progress=True, scheduler=None,
-             slurm=None, log=print, flights=True, track_cache=None,
-             null_draws=20, extra_effects=()) -> LoopResult:
-    """Run the loop on a loaded :class:`analysis.measurements.Dataset` (see the module doc).
-
-    Parameters
-    ----------
-    dataset : Dataset
-    theta_ref : dict or None - first anchor (default: the calibration's posterior mean)
-    base : tuple of base-parameter names (default all four)
-    replicates, diff_replicates : anchor seeds, seeds per response level
-    rerun, rerun_replicates : the final twin rerun and its seeds per condition
-    alpha : family-wise level of each diagnosis step (Bonferroni over the candidates)
-    max_effects, max_reanchor : limits of the forward selection and of re-anchoring
-    max_polish : twin-corrected refits after the rerun (0: the rerun only scores the fit).
-        The model, shifted onto the rerun's means at the fitted point, is refitted; a point
-        that moves by more than ``POLISH_TOL_SE`` standard errors gets its own rerun
-    budget_runs : most new twin runs the loop may start (None: no limit); checked before each
-        build, nothing runs beyond it
-    base_config : dict - run-config keys of every twin run (e.g. record_s, dt_s, a jar STL)
-    runner, workers, backend, runs_dir, progress, scheduler, slurm : the sweep's
-    log : callable(str) for progress lines
-    track_cache : folder where the tracks of the dataset's films are cached (default
-        results/track_cache)
-    null_draws : datasets drawn from the fitted model per step whose diagnosis calibrates the
-        significance threshold (:func:`null_scale`; 0: the nominal Bonferroni level only)
-    extra_effects : optional catalog entries diagnosed beside the default catalog
-        (twin_model.OPTIONAL_CANDIDATES, e.g. 'end_fillet'; :func:`optional_effects`)
-    """
-    from analysis.open_model import DEFAULT_BASE
-    t_start = time.time()
+def loop_space(dataset, extra_effects=()):
+    """The design space of a loop on ``dataset``: the base parameters of :data:`DEFAULT_BASE`
+    (the stroke left out when every condition states it) over their priors, the default DEM
+    catalog and the optional entries asked for."""
+    from analysis.history_matching import DesignSpace
+    from analysis.run_configs import stated_amplitude_m
+    from analysis.twin_model import OPTIONAL_CANDIDATES
     phys = physics_table(dataset.conditions)
-    sweep_kw = dict(runner=runner, workers=workers, backend=backend, runs_dir=runs_dir,
-                    progress=progress, scheduler=scheduler, slurm=slurm)
-    tracking = None
-    if dataset.video_files and any(c not in dataset.tracks for c in dataset.video_files):
-        import dataclasses
+    names = list(DEFAULT_BASE)
+    if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
+        names.remove("amplitude_m")
+    opt = {c.name: c for c in OPTIONAL_CANDIDATES}
+    effs = [c for c in CANDIDATES if c.kind == "dem"] + [opt[n] for n in extra_effects]
+    return DesignSpace.of(names, tuple(effs))
+
+
+def read_stage(dataset, settings, *, base_config=None, track_cache=None, progress=True,
+               log=print, track=True) -> LoopState:
+    """Track the dataset's films (cached; not with ``track=False``), read its observations,
+    set up the model."""
+    from analysis.emulated_twin import EmulatedTwin
+    tracking, tracks = None, {}
+    if track and dataset.video_files and any(c not in dataset.tracks
+                                             for c in dataset.video_files):
         from analysis.config import TRACK_CACHE_DIR
         from analysis.videos import track_dataset_videos
         tracks, tracking = track_dataset_videos(dataset, track_cache or TRACK_CACHE_DIR,
@@ -590,232 +436,266 @@ def run_loop(dataset, *, theta_ref=None, base=None, replicates=3, diff_replicate
             % (q.condition_id, q.n_frames, q.n_lost, q.n_reacquired, q.m_per_px * 1e3,
                q.scale_source, " [cached]" if q.cached else "") for q in tracking.itertuples())))
         dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
-    obs0, fl_ids, _ = dataset_observations(dataset, flights)
-    theta_ref = dict(theta_ref or reference_parameters())
-    effect_names = None
-    if extra_effects:
-        effect_names = ([c.name for c in CANDIDATES if c.kind == "dem"]
-                        + optional_effects(extra_effects, base_config))
-    used = {"new": 0}
+    obs0, fl_ids, _ = dataset_observations(dataset, settings.flights)
+    space = loop_space(dataset, settings.extra_effects)
+    ref = reference_parameters()
+    ref = {p.name: float(np.clip(ref.get(p.name, np.mean(p.prior)), *p.prior))
+           for p in space.base}
+    model = EmulatedTwin(dataset.conditions, space, velocity_frame=dataset.velocity_frame,
+                         flight_conditions=fl_ids, yield_times_min=yield_times_of(dataset),
+                         theta_ref=ref, seed=settings.seed)
+    if "amplitude_m" not in space.base_names:
+        model.held["amplitude_m"] = "stated by the dataset"
+    return LoopState(dataset=dataset, settings=settings, base_config=base_config, obs0=obs0,
+                     flight_ids=fl_ids, model=model, tracking=tracking, tracks=tracks)
 
-    def budget_left():
-        return None if budget_runs is None else budget_runs - used["new"]
 
-    def build(ref, stage, scout=False):
-        reps = dict(replicates=replicates, diff_replicates=diff_replicates)
-        if scout:
-            reps = dict(replicates=min(SCOUT_REPLICATES, replicates),
-                        diff_replicates=min(SCOUT_DIFF_REPLICATES, diff_replicates),
-                        noisy_replicates=min(SCOUT_DIFF_REPLICATES, diff_replicates))
-        m = OpenTwinModel(dataset.conditions, yield_times_of(dataset), theta_ref=ref,
-                          base=tuple(base or DEFAULT_BASE),
-                          velocity_frame=dataset.velocity_frame, flight_conditions=fl_ids,
-                          base_config=base_config, budget_runs=budget_left(),
-                          effect_names=effect_names, **reps, **sweep_kw)
-        ps = m.plan_summary(stage)
-        log("model at %s (%s): %d runs, %d cached, %d new, about %.0f min on %d worker(s)"
-            % (_fmt_theta(ref), "scout: anchor + base responses, fewer seeds" if scout else
-               "anchor + base responses" if stage == "base" else
-               "+ effect responses", ps["runs"], ps["cached"], ps["new"], ps["est_wall_s"] / 60,
-               workers))
-        m.fit(stage)
-        used["new"] += ps["new"]
-        return m
+def wave0_runs(state: LoopState) -> pd.DataFrame:
+    """The runs of wave 0 (what :func:`analysis.emulated_twin.build_in_waves` runs first)."""
+    from analysis.history_matching import design_runs, initial_design
+    s, m = state.settings, state.model
+    pts = initial_design(m.space, s.points, s.seed)
+    ref = m.point(m.theta_ref)
+    ref.insert(0, "point", -1)
+    return pd.concat([design_runs(m.space, pts, m.conditions, seeds=(s.seed,),
+                                  base_config=state.base_config),
+                      design_runs(m.space, ref, m.conditions,
+                                  seeds=range(REFERENCE_SEED0, REFERENCE_SEED0 + s.replicates),
+                                  base_config=state.base_config)], ignore_index=True)
 
-    noise = {"v_mean_m_s", "f_col_hz"}
-    if fl_ids:
+
+#: seeds of the reference point's replicates (build_in_waves' default)
+REFERENCE_SEED0 = 500
+
+
+def build_stage(state: LoopState, twin, log=print):
+    """Wave 0 and the refinement waves; the model fitted to all their runs."""
+    from analysis.emulated_twin import build_in_waves
+    s = state.settings
+    model, _, hist = build_in_waves(state.model, state.obs0, twin, n_initial=s.points,
+                                    n_waves=s.waves, per_wave=s.per_wave,
+                                    replicates=s.replicates, seed=s.seed,
+                                    base_config=state.base_config, log=log,
+                                    obs_chaos_runs=1.0, replicate_seed0=REFERENCE_SEED0)
+    state.model, state.waves = model, hist
+    state.obs = fit_observations(state.obs0, model)
+
+
+def calibrate_stage(state: LoopState):
+    """The base parameters fitted on the emulator (its sd in the likelihood)."""
+    m = state.model
+    w = WithAdded(m, {})
+    state.baseline, state.calibrated = calibrate_base(m.predict, state.obs, m.base_params(),
+                                                      model_se=w.model_se())
+    state.theta = {p.name: float(state.calibrated.params[p.name]) for p in m.base_params()}
+    state.final = state.calibrated
+    state.stair = [_stage_row("baseline", state.baseline, 0),
+                   _stage_row("calibrated", state.calibrated, state.n_base)]
+
+
+def noise_observables(state: LoopState) -> set:
+    out = {"v_mean_m_s", "f_col_hz"}
+    if state.flight_ids:
         from analysis.flights import FLIGHT_OBSERVABLES
-        noise |= set(FLIGHT_OBSERVABLES)
+        out |= set(FLIGHT_OBSERVABLES)
+    return out
 
-    def make_rerun_fn(model):
-        """rerun_fn(theta, added) of :func:`twin_corrected_refits`: the twin at the model's
-        other parameters with ``theta`` and the DEM effects of ``added`` on (fresh seeds)."""
-        def rerun_fn(th, eff):
-            pred, se, rmodel = rerun_table(dataset, dict(model.theta_ref, **th), eff,
-                                           replicates=rerun_replicates, seed0=100,
-                                           sweep_kw=sweep_kw, base_config=base_config,
-                                           flight_ids=fl_ids, budget_runs=budget_left())
-            used["new"] += rmodel.n_new_
-            return pred, se, rmodel.runs_
-        return rerun_fn
 
-    def calibrated(model):
-        """(obs, baseline fit, calibrated fit, theta) of the base parameters on ``model``."""
-        obs = fit_observations(obs0, model)
-        baseline, cal = calibrate_base(model.predict, obs, model.base_params(),
-                                       model_se=model.model_se())
-        theta = {p.name: cal.params[p.name] for p in model.base_params()}
-        # once more with the model's noise where the calibration landed (its base responses
-        # are measured, so away from the anchor they carry their own noise)
-        start = [BaseParameter(p.name, float(np.clip(theta[p.name], p.lower, p.upper)),
-                               p.lower, p.upper) for p in model.base_params()]
-        _, cal = calibrate_base(model.predict, obs, start, model_se=model.model_se(theta))
-        theta = {p.name: cal.params[p.name] for p in model.base_params()}
-        return obs, baseline, cal, theta
+def select_stage(state: LoopState, log=print):
+    """Forward selection of the missing effects from the calibrated point."""
+    s = state.settings
+    fs = forward_select(state.model, state.obs, state.theta,
+                        conditions=state.dataset.conditions, alpha=s.alpha,
+                        max_effects=s.max_effects, noise_observables=noise_observables(state),
+                        log=log, null_draws=s.null_draws)
+    state.selection = fs
+    state.added = dict(fs["added"])
+    state.theta = dict(fs["theta"])
+    if fs["last_fit"] is not None:
+        state.final = fs["last_fit"]
+    state.stair += fs["stairs"]
 
-    def analyse(model):
-        """calibrate (and, with reruns, refit on the twin-corrected model), forward
-        selection, final joint fit on one model."""
-        obs, baseline, cal, theta = calibrated(model)
-        theta_model = dict(theta)
-        nb = len(model.base_params())
-        stair = [_stage_row("baseline", baseline, 0), _stage_row("calibrated", cal, nb)]
-        diag_model, pre = model, []
-        if rerun and max_polish > 0:
-            # the twin itself at the calibrated point: the model shifted onto it (and the base
-            # parameters refitted there) is what diagnosis asks which effect is missing from -
-            # not the model's own error at an off-anchor point
-            log("twin rerun at the calibrated point (%d seeds per condition): diagnosis on the "
-                "twin-corrected model" % rerun_replicates)
-            tc0 = twin_corrected_refits(model, obs, theta, {}, cal, make_rerun_fn(model),
-                                        max_refits=max_polish, log=log)
-            if tc0["corrected"] is not None:
-                cal = tc0["final"]
-                theta = {k: float(cal.params[k]) for k in theta}
-                diag_model = _ShiftedModel(model, tc0["corrected"], rerun_replicates)
-            for row in tc0["stairs"]:
-                st = row["stage"]
-                row = dict(row, stage="twin rerun (calibrated)" if st == "twin rerun"
-                           else st.replace("twin-corrected", "calibrated, twin-corrected"))
-                stair.append(row)
-            pre = tc0["refits"]
-        fs = forward_select(diag_model, obs, theta, conditions=dataset.conditions, alpha=alpha,
-                            max_effects=max_effects, noise_observables=noise, log=log,
-                            null_draws=null_draws)
-        added, last_fit, theta = fs["added"], fs["last_fit"], fs["theta"]
-        stair += fs["stairs"]
-        # final joint fit (all added strengths with the base): strengths and their se
-        final = last_fit if last_fit is not None else cal
-        if added:
-            f2 = joint_fit(diag_model, obs, theta, added)
-            if f2.objective <= last_fit.objective:
-                final = f2
-            for k in added:
-                added[k] = float(final.params[k])
-            theta = {k: float(final.params[k]) for k in theta}
-        # where the final twin-corrected refits start: the strengths fitted jointly with the
-        # base parameters on the model itself, from its own calibrated point. The corrected
-        # model's base point was refitted WITHOUT the effects (a strong one drags it far: the
-        # arc of eff_p05 took static and rolling friction to their bounds, 13.8 se) and its
-        # shift was measured there, so strengths fitted on it started from a biased point
-        # (arc 5.00 +- 0.16 for 6.04, 9.9 for 12.8); the diagnosis - which effects - stays
-        # on the corrected model
-        start = refit_start(model, diag_model, obs, theta_model, added)
-        return dict(obs=obs, cal=cal, nb=nb, stair=stair, fs=fs, added=added, final=final,
-                    theta=theta, pre=pre, refit_start=start)
 
-    def reanchored(model, params, out, stage):
-        new_ref = dict(model.theta_ref)
-        for p in model.base_names:
-            new_ref[p] = float("%.4g" % params[p])
-        log("%s beyond the model's measured responses (%s): re-anchoring there"
-            % ("calibrated point" if stage == "base" else "final point",
-               ", ".join("%s %+.1f steps" % kv for kv in out.items())))
-        reanchors.append({"from": model.theta_ref, "to": new_ref, "beyond": out,
-                          "stage": stage})
-        return new_ref
+def twin_means(model, runs, theta, effects):
+    """(mean, se) Series by the model's keys of the twin's own runs at one point: the run means
+    of speed, f_col and the impact observables, the yields through the fitted powder line (or
+    kinetics effect) - the emulator's :meth:`_assemble` on the runs instead of its emulators."""
+    from analysis.emulated_twin import SPEED_COLUMN
+    from analysis.emulator import Prediction
+    cids = list(model.conditions["condition_id"])
+    parts = {}
+    for o in (SPEED_COLUMN[model.velocity_frame], "f_col_hz") + model.flight_obs:
+        g = runs.groupby("condition_id")[o]
+        mean = g.mean().reindex(cids).to_numpy(float)
+        n = g.count().reindex(cids).to_numpy(float)
+        se = (g.std(ddof=1).reindex(cids).to_numpy(float) / np.sqrt(np.maximum(n, 1)))
+        parts[o] = Prediction(mean[None], np.nan_to_num(se, nan=0.0)[None],
+                              np.zeros((1, len(cids))))
+    return (model._assemble(parts, theta, effects, "mean"),
+            model._assemble(parts, theta, effects, "latent_sd"))
 
-    reanchors = []
-    ref = dict(theta_ref)
-    # --- settle the anchor on a scout build (anchor and base responses with fewer seeds, the
-    # first seeds of the whole build's): the effect responses (about half of the model's runs)
-    # and the rest of the seeds are built once, where the calibration lands
-    while len(reanchors) < max_reanchor:
-        mb = build(ref, "base", scout=True)
-        cal_params = calibrated(mb)[2].params
-        out = mb.outside(cal_params)
-        if not out:
+
+def fitted_moves(a, b) -> float:
+    """Largest move between two fits in units of the later fit's standard errors."""
+    out = 0.0
+    for k, v in b.params.items():
+        se = float(b.stderr.get(k, np.nan))
+        if k in a.params and np.isfinite(se) and se > 0:
+            out = max(out, abs(float(v) - float(a.params[k])) / se)
+    return out
+
+
+def confirm_stage(state: LoopState, twin, log=print):
+    """The twin at the final point (a design point), the emulator refitted with its runs, the
+    final fit redone; a point that moves gets its own rerun (``confirm_rounds``)."""
+    from analysis.history_matching import design_runs
+    s, m = state.settings, state.model
+    cands = candidates()
+    for r in range(s.confirm_rounds):
+        dem = {k: v for k, v in state.added.items() if cands[k].kind == "dem"}
+        pt = m.point(state.theta, dem)
+        pt.insert(0, "point", int(m.runs_["point"].max()) + 1)
+        seed0 = CONFIRM_SEED0 + r * s.rerun_replicates
+        runs = design_runs(m.space, pt, m.conditions,
+                           seeds=range(seed0, seed0 + s.rerun_replicates),
+                           base_config=state.base_config)
+        runs["wave"] = "confirm %d" % (r + 1)
+        log("twin rerun at the final point (%d seeds per condition): %s"
+            % (s.rerun_replicates, _fmt_theta(dict(state.theta, **state.added))))
+        runs = twin(runs)
+        pred, se = twin_means(m, runs, state.theta, state.added)
+        n_par = state.n_base + len(state.added)
+        score = rerun_score(state.obs, pred, se, state.final, n_par)
+        state.stair.append({"stage": "twin rerun", "chi2": score["chi2"], "dof": score["dof"],
+                            "chi2_dof": score["chi2"] / max(score["dof"], 1),
+                            "p_value": float(stats.chi2.sf(score["chi2"], max(score["dof"], 1))),
+                            "n_params": n_par})
+        m.fit(pd.concat([m.runs_, runs], ignore_index=True))
+        refit = joint_fit(m, state.obs, state.theta, state.added)
+        moved = fitted_moves(state.final, refit)
+        state.reruns.append({"round": r + 1, "point": dict(state.theta, **state.added),
+                             "runs": runs, "score": score, "moved_se": moved})
+        state.stair.append(_stage_row("refitted on the twin reruns", refit, n_par))
+        log("refitted with the rerun's runs: chi2/dof %.2f, the point moved %.2f se"
+            % (refit.chi2_dof, moved))
+        state.final = refit
+        state.theta = {k: float(refit.params[k]) for k in state.theta}
+        state.added = {k: float(refit.params[k]) for k in state.added}
+        if moved < CONFIRM_TOL_SE:
             break
-        ref = reanchored(mb, cal_params, out, "base")
-    # --- build, analyse; re-anchor where the final point (with its effects) leaves the
-    # measured responses
-    while True:
-        model = build(ref, "all")
-        an = analyse(model)
-        out = model.outside(an["final"].params)
-        if not out or len(reanchors) >= max_reanchor:
-            break
-        ref = reanchored(model, an["final"].params, out, "all")
-    obs, cal, stair, fs = an["obs"], an["cal"], an["stair"], an["fs"]
-    added, final, theta = an["added"], an["final"], an["theta"]
-    diags, step_rows = fs["diagnoses"], fs["steps"]
-    eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
 
-    # --- twin rerun at the final parameters, and the twin-corrected refits
-    rr, polish = None, []
-    if rerun:
-        log("twin rerun at the final parameters (%d seeds per condition)" % rerun_replicates)
-        st = an.get("refit_start")
-        if st is not None:
-            theta = {k: float(st.params[k]) for k in theta}
-            added = {k: float(st.params[k]) for k in added}
-            final = st
-            log("refits start from the joint fit on the model: %s"
-                % _fmt_theta(dict(theta, **added)))
-        tc = twin_corrected_refits(model, obs, theta, added, final, make_rerun_fn(model),
-                                   max_refits=max_polish, log=log)
-        final, theta, added, rr, polish = (tc["final"], tc["theta"], tc["added"], tc["rerun"],
-                                           tc["refits"])
-        stair += tc["stairs"]
-        eff_se = {k: float(final.stderr.get(k, np.nan)) for k in added}
-    staircase = pd.DataFrame(stair)
-    confirm = None
-    if rerun and polish and an["pre"]:
-        confirm = twin_confirmation(cal, final, diags, added, fs["null"])
-        if confirm is not None:
-            log("twin confirmation: chi2 gain %.1f on the twin-corrected fits, %.1f needed: %s"
-                % (confirm["gain_chi2"], confirm["needed_chi2"],
-                   "confirmed" if confirm["confirmed"] else "NOT confirmed"))
 
-    # --- tables
-    steps = pd.concat(step_rows, ignore_index=True) if step_rows else pd.DataFrame()
-    diagnosis = _diagnosis_table(steps, added, eff_se)
-    params = []
-    for p in model.base_params():
-        params.append({"name": p.name, "role": "base", "value": final.params.get(p.name),
-                       "se": final.stderr.get(p.name)})
-    for k, reason in model.held.items():
-        params.append({"name": k, "role": "held", "value": model.theta_ref[k], "se": np.nan,
-                       "note": reason})
-    for k, s in added.items():
-        params.append({"name": k, "role": "effect", "value": s, "se": eff_se[k],
-                       "note": candidates()[k].strength_label})
-    parameters = pd.DataFrame(params)
-    comp = obs.copy()
-    key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+def interval_stage(state: LoopState):
+    """95 % profile-likelihood intervals of every fitted parameter on the final model."""
+    from analysis.diagnose import profile_interval
+    w = WithAdded(state.model, state.added, state.theta)
+    bp = fitted_parameters(state.model, state.theta, state.added)
+    for q in bp:
+        state.intervals[q.name] = profile_interval(w.predict, state.obs, bp, q.name,
+                                                   state.final, model_se=w.model_se())
+
+
+def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | None = None,
+             base_config=None, track_cache=None, progress=True, log=print) -> LoopResult:
+    """Run the loop's stages on a loaded :class:`analysis.measurements.Dataset` (see the module
+    doc). ``twin`` runs the design's runs (default: the YADE twin through the sweep, cached in
+    results/runs, with the committed run table); ``base_config`` holds the run-config keys of
+    every twin run (the frame, the rig's apparatus, ``record_s``)."""
+    t0 = time.time()
+    s = (settings or LoopSettings()).check()
+    twin = twin if twin is not None else TwinRuns(base_config=base_config, progress=progress)
+    state = read_stage(dataset, s, base_config=base_config, track_cache=track_cache,
+                       progress=progress, log=log)
+    build_stage(state, twin, log)
+    calibrate_stage(state)
+    select_stage(state, log)
+    if s.rerun:
+        confirm_stage(state, twin, log)
+    if s.intervals:
+        interval_stage(state)
+    return result_of(state, new_runs=twin.new_runs, wall_s=time.time() - t0)
+
+
+def result_of(state: LoopState, *, new_runs, wall_s) -> LoopResult:
+    """The loop's tables and words from its final state."""
+    fs, final, cal = state.selection, state.final, state.calibrated
+    model, dataset = state.model, state.dataset
+    eff_se = {k: float(final.stderr.get(k, np.nan)) for k in state.added}
+    steps = pd.concat(fs["steps"], ignore_index=True) if fs["steps"] else pd.DataFrame()
+    diagnosis = _diagnosis_table(steps, state.added, eff_se)
+    parameters = parameter_table(state, eff_se)
+    comp = state.obs.copy()
+    key = pd.MultiIndex.from_frame(comp[["condition_id", "observable"]])
     comp["calibrated"] = cal.prediction.reindex(key).to_numpy(float)
     comp["z_calibrated"] = cal.residuals.reindex(key).to_numpy(float)
     comp["final"] = final.prediction.reindex(key).to_numpy(float)
     comp["z_final"] = final.residuals.reindex(key).to_numpy(float)
+    rr = state.reruns[-1]["score"] if state.reruns else None
     if rr is not None:
         comp["twin_rerun"] = rr["prediction"].to_numpy(float)
         comp["z_twin_rerun"] = rr["z"].to_numpy(float)
-    status, verdict = _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model,
-                                     alpha, confirm)
+    status, verdict = _verdict_words(fs["diagnoses"], state.added, eff_se, cal, final, rr,
+                                     dataset, model, state.settings.alpha, parameters)
+    phys = physics_table(dataset.conditions)
+    reruns = (pd.concat([r["runs"] for r in state.reruns], ignore_index=True)
+              if state.reruns else None)
     info = {"dataset": dataset.name, "velocity_frame": dataset.velocity_frame,
             "conditions": [dict(r, label=label(r["frequency_hz"], r["ball_diameter_mm"],
                                               r["amplitude_mm"]))
                            for r in phys.drop(columns=["physics_key"]).to_dict("records")],
-            "anchor": model.theta_ref, "reanchors": reanchors, "held": model.held,
-            "base_response_z": {k: round(float(v), 2) for k, v in
-                                getattr(model, "response_z_", {}).items()},
-            "new_runs": used["new"], "wall_s": time.time() - t_start,
-            "flight_conditions": fl_ids, "alpha": alpha,
-            "tracking": None if tracking is None else tracking.to_dict("records"),
-            "bootstrap": fs["null"], "twin_corrected": polish,
-            "twin_corrected_calibration": an["pre"], "twin_confirmation": confirm,
-            "beyond_model": out}
+            "reference_point": model.theta_ref, "model": "emulator",
+            "settings": dataclasses.asdict(state.settings),
+            "waves": {str(k): v for k, v in state.waves.items()},
+            "n_model_runs": int(len(model.runs_)), "new_runs": int(new_runs),
+            "wall_s": wall_s, "flight_conditions": state.flight_ids,
+            "alpha": state.settings.alpha,
+            "tracking": None if state.tracking is None else state.tracking.to_dict("records"),
+            "bootstrap": fs["null"],
+            "reruns": [{k: v for k, v in r.items() if k not in ("runs", "score")}
+                       | {"chi2": r["score"]["chi2"], "dof": r["score"]["dof"]}
+                       for r in state.reruns]}
     return LoopResult(status=status, verdict=verdict,
-                      effects={k: (added[k], eff_se[k]) for k in added}, staircase=staircase,
-                      diagnosis=diagnosis, steps=steps, parameters=parameters,
-                      comparison=comp, model_runs=model.runs_, info=info, diagnoses=diags,
-                      tracks={c: dataset.tracks[c] for c in (tracking["condition_id"]
-                                                            if tracking is not None else [])},
-                      rerun_runs=None if rr is None else rr["runs"])
+                      effects={k: (state.added[k], eff_se[k]) for k in state.added},
+                      staircase=pd.DataFrame(state.stair), diagnosis=diagnosis, steps=steps,
+                      parameters=parameters, comparison=comp,
+                      model_runs=run_table_of(model.runs_), info=info,
+                      diagnoses=fs["diagnoses"], tracks=state.tracks,
+                      rerun_runs=None if reruns is None else run_table_of(reruns))
+
+
+def run_table_of(runs: pd.DataFrame) -> pd.DataFrame:
+    """A table of twin runs as the loop writes it (the config left out: the run id names it)."""
+    return runs.drop(columns=[c for c in ("config",) if c in runs.columns])
+
+
+def parameter_table(state: LoopState, eff_se) -> pd.DataFrame:
+    """name, role, value, se, unit, profile interval (and whether it is open at a bound)."""
+    from analysis.parameter_space import SPACE
+    final = state.final
+    rows = []
+    names = [p.name for p in state.model.base_params()] + list(state.added)
+    for k in names:
+        iv = state.intervals.get(k)
+        is_eff = k in state.added
+        rows.append({"name": k, "role": "effect" if is_eff else "base",
+                     "value": float(final.params.get(k, np.nan)),
+                     "se": eff_se[k] if is_eff else float(final.stderr.get(k, np.nan)),
+                     "unit": (candidates()[k].strength_label if is_eff else
+                              SPACE[k].unit if k in SPACE else ""),
+                     "profile_lo": iv.lower if iv else np.nan,
+                     "profile_hi": iv.upper if iv else np.nan,
+                     "profile_open": ((" ".join(w for w, o in (("lower", iv.open_lower),
+                                                             ("upper", iv.open_upper)) if o))
+                                      if iv else ""),
+                     "note": candidates()[k].strength_label if is_eff else ""})
+    for k, reason in state.model.held.items():
+        rows.append({"name": k, "role": "held", "value": state.model.theta_ref.get(k, np.nan),
+                     "se": np.nan, "note": reason})
+    return pd.DataFrame(rows)
 
 
 #: run-config keys the loop sets itself, never through ``--set``: the conditions, the seeds, the
-#: effects, and the base parameters it calibrates (open_model.DEFAULT_BASE); --frame and
+#: effects, and the base parameters it calibrates (DEFAULT_BASE); --frame and
 #: --record-s have their own options
 LOOP_OWNED_KEYS = frozenset({"frequency_hz", "ball_diameter_m", "seed", "effects", "frame",
                              "record_s"})
@@ -835,7 +715,6 @@ def run_settings(pairs, *, frame="lab", record_s=None):
         or a value the run config refuses
     """
     from analysis.config import twin_config
-    from analysis.open_model import DEFAULT_BASE
     out = {}
     for k, v in pairs:
         if k not in twin_config.PARAMETERS:
@@ -905,6 +784,29 @@ def with_assumed_v_sd(dataset, v_rel_sd):
     return dataclasses.replace(dataset, summary=summ)
 
 
+def _interval_words(parameters, name):
+    """', 95 % interval lo-hi' from the parameters table's profile interval ('' without)."""
+    if parameters is None or "profile_lo" not in parameters:
+        return ""
+    r = parameters[parameters["name"] == name]
+    if not len(r) or not np.isfinite(float(r["profile_lo"].iloc[0])):
+        return ""
+    return ", 95 %% interval %.3g-%.3g" % (float(r["profile_lo"].iloc[0]),
+                                          float(r["profile_hi"].iloc[0]))
+
+
+def rerun_words(rr, final):
+    """The twin rerun's chi2/dof beside the model's at the same point, and whether they agree
+    within a chi-square's own scatter (2 sd: 2 sqrt(2 dof))."""
+    dof = max(int(rr["dof"]), 1)
+    tol = 2.0 * math.sqrt(2.0 * dof)
+    agree = abs(rr["chi2"] - final.chi2) <= tol
+    return ("the real twin rerun at the final parameters: chi2/dof %.2f, the emulator's there "
+            "%.2f (%s within the chi-square's own scatter, +- %.1f in chi2)"
+            % (rr["chi2"] / dof, final.chi2_dof, "they agree" if agree else "they DISAGREE",
+               tol))
+
+
 def _fmt_theta(t):
     return ", ".join("%s %.4g" % (k, v) for k, v in t.items())
 
@@ -943,7 +845,7 @@ def _diagnosis_table(steps, added, eff_se):
 
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
-                   confirm=None):
+                   parameters=None):
     from analysis.report.loop_words import prior_sd, stated_stroke_words, \
         UNCONSTRAINED_SE_RATIO
     head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
@@ -954,7 +856,8 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
         found = []
         for k, s in added.items():
             c = candidates()[k]
-            found.append("%s (%s = %.3g +- %.2g)" % (k, c.strength_label, s, eff_se[k]))
+            found.append("%s (%s = %.3g +- %.2g%s)" % (k, c.strength_label, s, eff_se[k],
+                                                      _interval_words(parameters, k)))
         status = "effects"
         parts.append("missing effect%s: %s; chi2/dof %.2f -> %.2f"
                      % ("s" if len(added) > 1 else "", "; ".join(found), cal.chi2_dof,
@@ -997,7 +900,7 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                 held.append("the stroke as the dataset states it (amplitude_mm %s), not "
                             "fitted" % stroke)
             else:
-                held.append("%s held at the anchor %.4g (%s)"
+                held.append("%s held at %.4g (%s)"
                             % (k, float(model.theta_ref.get(k, np.nan)), reason))
         parts.append("; ".join(held))
     # parameters the data leave about as uncertain as the prior (the report's rule)
@@ -1018,21 +921,8 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
             loose.append("%s (se %.2g for a prior sd %.2g)" % (k, se, sd))
     if loose:
         parts.append("not constrained by the data: " + ", ".join(loose))
-    beyond = model.outside(final.params)
-    if beyond:
-        parts.append("the final point lies beyond the model's measured responses (%s; no "
-                     "re-anchoring left): its figures there are extrapolated"
-                     % ", ".join("%s %+.1f steps" % kv for kv in beyond.items()))
-    if confirm is not None:
-        parts.append("%s: with %s, the model shifted onto the twin's reruns gains chi2 %.1f "
-                     "(%.1f needed)"
-                     % ("the twin confirms it" if confirm["confirmed"] else
-                        "the twin does NOT confirm it (treat it as a suggestion)",
-                        "these effects" if len(added) > 1 else "the effect",
-                        confirm["gain_chi2"], confirm["needed_chi2"]))
     if rr is not None:
-        parts.append("the real twin rerun at the final parameters: chi2/dof %.2f"
-                     % (rr["chi2"] / max(rr["dof"], 1)))
+        parts.append(rerun_words(rr, final))
     return status, ". ".join(parts) + "."
 
 
@@ -1056,13 +946,9 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
     out_dir = Path(out_dir)
     fake = is_fake_run(res)
     bounds, priors = {}, {}
-    try:
-        from analysis.open_model import calibration_prior
-        from analysis.parameter_space import CALIBRATED, effect_strengths
-        bounds = dict(CALIBRATED, **{k: v[:2] for k, v in effect_strengths().items()})
-        priors = calibration_prior()
-    except (OSError, KeyError, ValueError, ImportError):
-        pass                          # no prior known: the flat prior over the bounds
+    from analysis.parameter_space import CALIBRATED, effect_strengths
+    # the model's priors are flat over the design's bounds
+    bounds = dict(CALIBRATED, **{k: v[:2] for k, v in effect_strengths().items()})
     params = annotate_parameters(res.parameters, getattr(dataset, "conditions", None),
                                  bounds=bounds, priors=priors)
     diagnosis = res.diagnosis.copy()
@@ -1142,18 +1028,6 @@ def _json(o):
 
 # --------------------------------------------------------------------------- CLI
 
-def rerun_runs(n_conditions, *, rerun=True, replicates=3, max_refits=MAX_POLISH):
-    """(runs, most runs) of the loop's twin reruns, fresh seeds each: ``replicates`` per
-    condition at the calibrated point (with refits) and at the final point; each
-    twin-corrected refit that moves the point adds one more rerun there (at most
-    ``max_refits`` per point)."""
-    if not rerun:
-        return 0, 0
-    per = int(n_conditions) * int(replicates)
-    points = 2 if max_refits > 0 else 1
-    return per * points, per * points * (1 + int(max_refits))
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse with one error line (``analysis.loop: error: ...``) and exit code 2."""
 
@@ -1165,18 +1039,15 @@ class _Parser(argparse.ArgumentParser):
 def check_options(a):
     """Refuse (ValueError, one line) every option value the loop cannot run with, before the
     dataset is read or anything planned - the dry run included."""
-    def at_least(flag, value, lo):
-        if value is not None and value < lo:
-            raise ValueError("%s must be >= %d, got %d" % (flag, lo, value))
-    for flag, value in (("--replicates", a.replicates), ("--diff-replicates", a.diff_replicates),
-                        ("--rerun-replicates", a.rerun_replicates), ("--workers", a.workers)):
-        at_least(flag, value, 1)
-    for flag, value in (("--budget-runs", a.budget_runs), ("--max-refits", a.max_refits),
-                        ("--null-draws", a.null_draws), ("--max-reanchor", a.max_reanchor),
-                        ("--max-effects", a.max_effects)):
-        at_least(flag, value, 0)
-    if not (math.isfinite(a.alpha) and 0.0 < a.alpha < 1.0):
-        raise ValueError("--alpha must lie in (0, 1), got %g" % a.alpha)
+    if a.workers < 1:
+        raise ValueError("--workers must be >= 1, got %d" % a.workers)
+    if a.budget_runs is not None and a.budget_runs < 0:
+        raise ValueError("--budget-runs must be >= 0, got %d" % a.budget_runs)
+    for flag in ("diff_replicates", "max_reanchor", "max_refits"):
+        v = getattr(a, flag)
+        if v is not None and v < 0:
+            raise ValueError("--%s must be >= 0, got %d" % (flag.replace("_", "-"), v))
+    settings_of(a).check()
     if a.record_s is not None and not (a.record_s > 0 and math.isfinite(a.record_s)):
         raise ValueError("--record-s must be > 0 s, got %g" % a.record_s)
     if a.v_rel_sd is not None and not (math.isfinite(a.v_rel_sd) and 0.0 < a.v_rel_sd < 0.5):
@@ -1190,43 +1061,71 @@ def check_options(a):
                          "local or serial")
 
 
-def dof_limits(ds, max_effects, base=None):
+def settings_of(a, max_effects=None, extra=()) -> LoopSettings:
+    """The LoopSettings of the command's options (``--max-refits N``, the earlier form, asks
+    for up to N reruns after the first: ``--confirm-rounds N + 1``)."""
+    rounds = a.confirm_rounds if a.max_refits is None else a.max_refits + 1
+    return LoopSettings(alpha=a.alpha, max_effects=a.max_effects if max_effects is None
+                        else max_effects, null_draws=a.null_draws, points=a.points,
+                        replicates=a.replicates, waves=a.waves, per_wave=a.per_wave,
+                        rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
+                        confirm_rounds=rounds, intervals=not a.no_intervals,
+                        seed=a.seed, extra_effects=tuple(extra))
+
+
+def dof_limits(ds, max_effects, extra=()):
     """(calibration dof, max effects) of a loop on ``ds``, before anything is planned.
 
-    The calibration fits every base parameter the dataset does not state (and, with yields,
-    the powder line's slope and intercept) to the dataset's observations and the frictions'
-    prior pseudo-observations; each added effect costs one more degree of freedom. Raises
+    The calibration fits every base parameter of the design space (the stroke not when every
+    condition states it) and, with yields, the powder line's slope and intercept, to the
+    dataset's observations; each added effect costs one more degree of freedom. Raises
     ValueError when the calibration would keep no degree of freedom (one condition with
     v_mean and f_col only: chi2/dof undefined, nothing can be tested); otherwise the number
     of effects is capped so that one degree of freedom stays. A dataset whose films are not
     yet tracked may gain impact observables: then nothing is refused or capped here.
     """
-    from analysis.open_model import DEFAULT_BASE, calibration_prior
-    from analysis.run_configs import stated_amplitude_m
     if ds.video_files and any(c not in ds.tracks for c in ds.video_files):
         return None, max_effects
     obs, _, _ = dataset_observations(ds, True)
     n_obs = int(np.isfinite(pd.to_numeric(obs["value"], errors="coerce")).sum())
-    phys = physics_table(ds.conditions)
-    names = list(base or DEFAULT_BASE)
-    if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
-        names = [n for n in names if n != "amplitude_m"]
-    try:
-        n_prior = len(set(calibration_prior()) & set(names))
-    except (OSError, ValueError, KeyError):
-        n_prior = 0
-    n_par = len(names) + (2 if yield_times_of(ds) else 0)
-    dof = n_obs + n_prior - n_par
+    names = loop_space(ds, extra).base_names
+    yields = ["slope_pct_per_kj", "intercept_pct"] if yield_times_of(ds) else []
+    dof = n_obs - len(names) - len(yields)
     if dof < 1:
         raise ValueError(
-            "%s: %d observation(s) at %d condition(s) (+ %d prior pseudo-observation(s)) for "
-            "%d calibrated parameter(s) (%s) leave %d degrees of freedom: chi2/dof is "
-            "undefined and no effect can be tested; measure at more conditions (each adds "
-            "v_mean and f_col), add jar tracks, or state the stroke (amplitude_mm)"
-            % (ds.name, n_obs, len(phys), n_prior,
-               n_par, ", ".join(names + (["slope_pct_per_kj", "intercept_pct"]
-                                        if yield_times_of(ds) else [])), dof))
+            "%s: %d observation(s) at %d condition(s) for %d calibrated parameter(s) (%s) "
+            "leave %d degrees of freedom: chi2/dof is undefined and no effect can be tested; "
+            "measure at more conditions (each adds v_mean and f_col), add jar tracks, or "
+            "state the stroke (amplitude_mm)"
+            % (ds.name, n_obs, len(ds.conditions), len(names) + len(yields),
+               ", ".join(names + yields), dof))
     return dof, min(max_effects, dof - 1)
+
+
+def plan_lines(ds, settings, base_config, twin) -> list:
+    """The dry run's lines: wave 0 exactly (cached, committed, new), the refinement waves and
+    the reruns at most, the total and its wall time."""
+    from analysis.emulated_twin import wave_runs
+    from analysis.twin_runs import run_wall_s
+    state = read_stage(ds, settings, base_config=base_config, track=False, log=lambda _: None)
+    p0 = twin.plan(wave0_runs(state))
+    n_c = len(ds.conditions)
+    most = wave_runs(n_c, n_initial=settings.points, n_waves=settings.waves,
+                     per_wave=settings.per_wave, replicates=settings.replicates)
+    rerun = (settings.confirm_rounds * settings.rerun_replicates * n_c) if settings.rerun else 0
+    per = run_wall_s(base_config, twin.runs_dir)
+    new_most = p0.new + most["refinement"] + rerun
+    return [
+        "wave 0 (%d points + the reference point x %d seeds, %d conditions): %s"
+        % (settings.points, settings.replicates, n_c, p0.words(twin.workers)),
+        "refinement waves: up to %d runs (%d waves x %d points x %d conditions, where the data "
+        "are plausible)" % (most["refinement"], settings.waves, settings.per_wave, n_c),
+        "twin reruns at the final point: up to %d runs (%d round(s) x %d seeds x %d conditions)"
+        % (rerun, settings.confirm_rounds if settings.rerun else 0, settings.rerun_replicates,
+           n_c),
+        "total: up to %d runs, up to %d new, about %.0f min on %d worker(s) (%.0f s per run)"
+        % (p0.runs + most["refinement"] + rerun, new_most,
+           math.ceil(new_most / max(twin.workers, 1)) * per / 60, twin.workers, per)]
 
 
 def main(argv=None):
@@ -1243,46 +1142,54 @@ def main(argv=None):
 def _main(argv=None):
     ap = _Parser(
         prog="python -m analysis.loop",
-        description="The loop on a measurement dataset: build the twin model at its "
-        "conditions, calibrate, diagnose which effect is missing, add it (repeatedly), rerun "
-        "the twin, write one report folder.",
+        description="The loop on a measurement dataset: build the emulator of the twin at its "
+        "conditions in waves of twin runs, calibrate, diagnose which effect is missing, add it "
+        "(repeatedly), rerun the twin at the final point, write one report folder.",
         epilog="example: python -m analysis.loop --dataset data/measurements/paper_table3 "
         "--out results/loop/paper_table3",
         formatter_class=argparse.RawDescriptionHelpFormatter)
+    d = LoopSettings()
     ap.add_argument("--dataset", required=True, help="dataset folder (docs/dataset_format.md)")
     ap.add_argument("--out", required=True,
                     help="output folder; replaced only when an earlier loop wrote it")
     ap.add_argument("--budget-runs", type=int, default=None,
                     help="most new twin runs to start [runs] (default: no limit); the loop stops "
-                    "with exit 3 before a build that needs more")
+                    "with exit 3 before a wave that needs more")
     ap.add_argument("--dry-run", action="store_true",
-                    help="print the first build's plan (runs, cached, estimated wall time) "
-                    "and exit; nothing is run or written")
-    ap.add_argument("--replicates", type=int, default=3, help="anchor seeds per condition [seeds]")
-    ap.add_argument("--diff-replicates", type=int, default=2,
-                    help="seeds per base-parameter / effect level [seeds]")
-    ap.add_argument("--no-rerun", action="store_true", help="skip the final twin rerun")
-    ap.add_argument("--rerun-replicates", type=int, default=3,
-                    help="seeds per condition of the final twin rerun [seeds]")
-    ap.add_argument("--max-refits", type=int, default=MAX_POLISH,
-                    help="[refits] twin-corrected refits after the rerun: the model shifted onto the "
-                    "rerun's means at the fitted point and refitted; a point that moves gets "
-                    "its own rerun (0: the rerun only scores the fit)")
-    ap.add_argument("--alpha", type=float, default=0.01,
+                    help="print the plan (wave 0's runs, cached and new; the waves and reruns at "
+                    "most; the estimated wall time) and exit; nothing is run or written")
+    ap.add_argument("--points", type=int, default=d.points,
+                    help="wave-0 design points [points] (default %(default)s)")
+    ap.add_argument("--replicates", type=int, default=d.replicates,
+                    help="seeds of the reference point, the twin's chaos per condition [seeds] "
+                    "(default %(default)s)")
+    ap.add_argument("--waves", type=int, default=d.waves,
+                    help="refinement waves where the data are plausible [waves] (default "
+                    "%(default)s)")
+    ap.add_argument("--per-wave", type=int, default=d.per_wave,
+                    help="design points per refinement wave [points] (default %(default)s)")
+    ap.add_argument("--seed", type=int, default=d.seed, help="design seed [-] (default "
+                    "%(default)s)")
+    ap.add_argument("--no-rerun", action="store_true",
+                    help="skip the twin reruns at the final point")
+    ap.add_argument("--rerun-replicates", type=int, default=d.rerun_replicates,
+                    help="seeds per condition of each twin rerun [seeds] (default %(default)s)")
+    ap.add_argument("--confirm-rounds", type=int, default=d.confirm_rounds,
+                    help="most twin reruns: after each the emulator is refitted with the "
+                    "rerun's runs and the fit redone; a point that moves by more than %.1f se "
+                    "gets the next [rounds] (default %%(default)s)" % CONFIRM_TOL_SE)
+    ap.add_argument("--no-intervals", action="store_true",
+                    help="skip the profile-likelihood intervals (the se only)")
+    ap.add_argument("--alpha", type=float, default=d.alpha,
                     help="family-wise significance level of each diagnosis step [-]")
-    ap.add_argument("--null-draws", type=int, default=20,
+    ap.add_argument("--null-draws", type=int, default=d.null_draws,
                     help="[datasets] datasets drawn from the fitted model per step to calibrate the "
                     "significance threshold (0: nominal level only)")
-    ap.add_argument("--max-reanchor", type=int, default=MAX_REANCHOR,
-                    help="[re-anchorings] most re-anchorings of the model where the answer lies beyond its "
-                    "measured responses (each costs a new model build)")
     ap.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
                     help="most effects added (forward selection) [effects]")
-    ap.add_argument("--frame", choices=("lab", "jar", "auto"), default="lab",
-                    help="frame the twin runs are integrated in (run config 'frame'): 'auto' "
-                    "runs the jar frame where the effects allow it, 1.7x faster per run; the "
-                    "default 'lab' keeps the runs committed in results/ usable (they are lab "
-                    "runs: another frame is another run id)")
+    ap.add_argument("--frame", choices=("lab", "jar", "auto"), default="auto",
+                    help="frame the twin runs are integrated in (run config 'frame'; default "
+                    "%(default)s: the jar frame, 1.7-1.9x faster, where the effects allow it)")
     ap.add_argument("--record-s", type=float, default=None,
                     help="recorded time per twin run [s] (default the run config's 0.5 s)")
     ap.add_argument("--with-effect", action="append", default=[], metavar="NAME",
@@ -1304,11 +1211,20 @@ def _main(argv=None):
     ap.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
     ap.add_argument("--fake", action="store_true",
                     help="use the FAKE analytic twin (tests and demonstrations only)")
+    # the anchored model's options (before the emulator): accepted, see CHANGELOG.md
+    ap.add_argument("--max-refits", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--diff-replicates", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--max-reanchor", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     try:
         # every option and the output (its parent included) before the dataset is read or
-        # anything planned: a bad value never costs a build
+        # anything planned: a bad value never costs a run
         check_options(a)
+        for flag in ("diff_replicates", "max_reanchor"):
+            if getattr(a, flag) is not None:
+                print("analysis.loop: note: --%s has no effect since the loop's model is the "
+                      "emulator (no anchor; see CHANGELOG.md)" % flag.replace("_", "-"),
+                      file=sys.stderr)
         check_out_dir(a.out, [a.dataset])
         base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
         extra = optional_effects(a.with_effect, base_config)
@@ -1318,54 +1234,18 @@ def _main(argv=None):
         physics_table(ds.conditions)
         if a.v_rel_sd is not None:
             ds = with_assumed_v_sd(ds, a.v_rel_sd)
-        _, max_effects = dof_limits(ds, a.max_effects)
+        _, max_effects = dof_limits(ds, a.max_effects, extra)
         if max_effects < a.max_effects:
             print("analysis.loop: note: at most %d effect(s) added (--max-effects %d): each "
                   "costs a degree of freedom and the dataset leaves %d beyond the calibration"
                   % (max_effects, a.max_effects, max_effects + 1), file=sys.stderr)
-        runner = None
-        runs_dir = None
-        if a.fake:
-            from analysis.config import FAKE_RUNS_DIR
-            from analysis.fake_twin import run_fake_twin
-            runner, runs_dir = run_fake_twin, FAKE_RUNS_DIR
+        settings = settings_of(a, max_effects, extra).check()
+        twin = twin_of(a, base_config)
         if a.dry_run:
-            m = OpenTwinModel(ds.conditions, yield_times_of(ds),
-                              velocity_frame=ds.velocity_frame, replicates=a.replicates,
-                              diff_replicates=a.diff_replicates, base_config=base_config,
-                              runner=runner, workers=a.workers, runs_dir=runs_dir,
-                              effect_names=([c.name for c in CANDIDATES if c.kind == "dem"]
-                                            + extra) if extra else None)
-            for stage in ("base", "all"):
-                ps = m.plan_summary(stage)
-                print("%s: %d runs, %d cached, %d new, about %.0f min on %d worker(s) "
-                      "(%.0f s per run)" % ("anchor + base responses" if stage == "base"
-                                            else "with the effect responses", ps["runs"],
-                                            ps["cached"], ps["new"], ps["est_wall_s"] / 60,
-                                            a.workers, run_wall_s(base_config, runs_dir)))
-            lo, hi = rerun_runs(len(ds.conditions), rerun=not a.no_rerun,
-                                replicates=a.rerun_replicates, max_refits=a.max_refits)
-            if lo:
-                print("twin reruns: %d runs (%d seed(s) at %d condition(s), at %s), up to %d "
-                      "when the twin-corrected refits move the point"
-                      % (lo, a.rerun_replicates, len(ds.conditions),
-                         "the calibrated and the final point" if a.max_refits > 0
-                         else "the final point", hi))
-            w = max(a.workers, 1)
-            print("total: %d runs, %d new (up to %d), about %.0f min on %d worker(s); each "
-                  "re-anchoring (at most %d) adds a build" % (
-                      ps["runs"] + lo, ps["new"] + lo, ps["new"] + hi,
-                      math.ceil((ps["new"] + lo) / w) * run_wall_s(base_config, runs_dir) / 60,
-                      a.workers, a.max_reanchor))
+            print("\n".join(plan_lines(ds, settings, base_config, twin)))
             return 0
-        res = run_loop(ds, replicates=a.replicates, diff_replicates=a.diff_replicates,
-                       null_draws=a.null_draws, max_reanchor=a.max_reanchor,
-                       max_polish=a.max_refits,
-                       rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
-                       alpha=a.alpha, max_effects=max_effects, budget_runs=a.budget_runs,
-                       base_config=base_config, runner=runner, workers=a.workers,
-                       backend=a.backend, scheduler=a.scheduler, runs_dir=runs_dir,
-                       log=lambda s: print(s, file=sys.stderr), extra_effects=extra)
+        res = run_loop(ds, settings, twin=twin, base_config=base_config,
+                       log=lambda s: print(s, file=sys.stderr))
         write_loop(res, a.out, ds, protected=[a.dataset])
     except BudgetError as exc:
         print("analysis.loop: %s" % exc, file=sys.stderr)
@@ -1381,6 +1261,18 @@ def _main(argv=None):
                                     for r in res.staircase.itertuples()))
     print("wrote %s" % a.out)
     return 0
+
+
+def twin_of(a, base_config) -> TwinRuns:
+    """The twin the command's runs go to: YADE through the sweep (cache results/runs and the
+    committed run table), or with ``--fake`` the analytic stand-in (cache results/runs_fake)."""
+    kw = dict(workers=a.workers, backend=a.backend, scheduler=a.scheduler,
+              budget_runs=a.budget_runs, base_config=base_config)
+    if a.fake:
+        from analysis import config
+        from analysis.fake_twin import run_fake_twin
+        return TwinRuns(runner=run_fake_twin, runs_dir=config.FAKE_RUNS_DIR, **kw)
+    return TwinRuns(**kw)
 
 
 if __name__ == "__main__":

@@ -167,7 +167,7 @@ def plot_chi2_staircase(staircase, ax=None, *, title: str | None = None,
 
 
 #: colours of the loop staircase's bar kinds (analysis.report.loop_words.stage_kind)
-STAGE_COLOURS = {"model": "C0", "model on twin reruns": "C1", "real twin": "C3"}
+STAGE_COLOURS = {"model": "C0", "real twin": "C3"}
 
 
 def loop_staircase_figsize(staircase):

@@ -23,10 +23,9 @@ FAKE_WORDS = ("FAKE twin: every twin run of this loop was made by the analytic s
               "about a mill")
 
 #: what a staircase bar is
-MODEL, CORRECTED, TWIN = "model", "model on twin reruns", "real twin"
-#: legend words of the three kinds
-KIND_WORDS = {MODEL: "model (interpolated from the twin runs at its anchor)",
-              CORRECTED: "model shifted onto the real twin's reruns at that point",
+MODEL, TWIN = "model", "real twin"
+#: legend words of the two kinds
+KIND_WORDS = {MODEL: "model (the emulator fitted to the dataset's twin runs)",
               TWIN: "real twin (fresh runs at the fitted point)"}
 
 #: a parameter is "not constrained by the data" when its standard error is at least this
@@ -55,54 +54,37 @@ def is_fake_run(res) -> bool:
 # ------------------------------------------------------------------------------- the staircase
 
 def stage_kind(stage: str) -> str:
-    """:data:`MODEL`, :data:`CORRECTED` or :data:`TWIN` for a staircase stage name."""
-    s = str(stage)
-    if s.startswith("twin rerun"):
-        return TWIN
-    if "twin-corrected" in s:
-        return CORRECTED
-    return MODEL
+    """:data:`MODEL` or :data:`TWIN` for a staircase stage name."""
+    return TWIN if str(stage).startswith("twin rerun") else MODEL
 
 
 def stage_words(stage: str) -> str:
     """What a staircase stage is, in a few words."""
     s = str(stage)
     if s == "baseline":
-        return "the model at its anchor, nothing fitted"
+        return "the model at the reference point, nothing fitted"
     if s == "calibrated":
         return "the model, base parameters fitted"
-    if s.startswith("calibrated, twin-corrected"):
-        n = s[len("calibrated, twin-corrected"):].strip() or "1"
-        return ("base parameters refitted (%s) on the model shifted onto the twin's reruns at "
-                "the calibrated point" % ("refit %s" % n))
-    if s == "twin rerun (calibrated)":
-        return "the real twin rerun at the calibrated point, no effect"
     if s.startswith("+ "):
         return "%s added: its strength fitted with the base parameters" % s[2:]
-    if s.startswith("twin-corrected"):
-        n = s[len("twin-corrected"):].strip() or "1"
-        return ("the final fit, refit %s on the model shifted onto the twin's reruns at the "
-                "final point" % n)
     if s == "twin rerun":
-        return "the real twin rerun at the final parameters, with the effects found (if any)"
+        return "the real twin rerun at the fitted point, with the effects found (if any)"
+    if s == "refitted on the twin reruns":
+        return ("the emulator refitted with the rerun's runs, the base parameters and "
+                "strengths fitted again")
     return s
 
 
 def quoted_stages(staircase) -> dict:
-    """{role: row index} of the staircase rows the loop's verdict quotes: 'calibrated' (the
-    chi2/dof the verdict calls calibrated: the last twin-corrected refit at the calibrated point
-    when the loop reran the twin there, else the model's calibration), 'final' (after the
-    effects found, when one was added: the last model row) and 'twin rerun' (the last
-    real-twin rerun)."""
+    """{role: row index} of the staircase rows the loop's verdict quotes: 'calibrated',
+    'final' (the last model row, when an effect was added or the twin was rerun) and 'twin
+    rerun' (the last real-twin rerun)."""
     st = [str(s) for s in staircase["stage"]]
     out = {}
-    cal = [i for i, s in enumerate(st) if s == "calibrated"
-           or s.startswith("calibrated, twin-corrected")]
-    if cal:
-        out["calibrated"] = cal[-1]
+    if "calibrated" in st:
+        out["calibrated"] = st.index("calibrated")
     model = [i for i, s in enumerate(st) if stage_kind(s) != TWIN and s != "baseline"]
-    # the verdict quotes a chi2/dof after the effects only when one was added
-    if any(s.startswith("+ ") for s in st) and model and model[-1] != out.get("calibrated"):
+    if model and model[-1] != out.get("calibrated"):
         out["final"] = model[-1]
     if "twin rerun" in st:
         out["twin rerun"] = len(st) - 1 - st[::-1].index("twin rerun")
@@ -143,9 +125,9 @@ def dof_words(staircase) -> list:
     dof0 = int(st["dof"].iloc[0])
     np0 = int(st["n_params"].iloc[0]) if "n_params" in st else 0
     n_obs = dof0 + np0
-    out = ["dof = observations - fitted parameters: %d observations (the frictions' priors "
-           "count as two where they are fitted); the baseline fits nothing (dof %d), the "
-           "calibration fits the base parameters, each added effect one strength more."
+    out = ["dof = observations - fitted parameters: %d observations; the baseline fits "
+           "nothing (dof %d), the calibration fits the base parameters, each added effect one "
+           "strength more."
            % (n_obs, dof0)]
     for i in range(1, len(st)):
         a, b = st.iloc[i - 1], st.iloc[i]
@@ -157,11 +139,11 @@ def dof_words(staircase) -> list:
                        % (a["stage"], b["stage"], float(a["chi2"]), float(b["chi2"]),
                           _f2(a["chi2_dof"]), _f2(b["chi2_dof"]), int(a["dof"]), int(b["dof"]),
                           int(a["dof"]) - int(b["dof"])))
-    if any(stage_kind(s) != MODEL for s in st["stage"]):
-        out.append("The rows on the twin's reruns (model on twin reruns, real twin) are scored "
-                   "with the noise of the reruns' means instead of the model's, and against the "
-                   "twin itself: a rise from `calibrated` to them is the twin disagreeing with "
-                   "the model away from its anchor, not a worse fit of the same model.")
+    if any(stage_kind(s) == TWIN for s in st["stage"]):
+        out.append("The twin rerun rows are scored with the noise of the reruns' means "
+                   "instead of the emulator's, against the twin itself: where one lies above "
+                   "the model row before it, the twin disagrees with the emulator at that "
+                   "point (the refit after it uses the rerun's runs).")
     if (st["dof"] <= 0).any():
         out.append("A row with dof 0 or less cannot be tested (its chi2/dof is left empty).")
     return out

@@ -104,9 +104,9 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                                 ["condition_id", "video", "n_frames", "n_lost", "n_reacquired",
                                  "m_per_px", "scale_source", "jar_n_lost"])
     md += ["", "## Staircase (chi2/dof)", "",
-           "Each row is the model (interpolated from the twin runs at its anchor), the model "
-           "shifted onto the real twin's reruns at that point, or the real twin itself (fresh "
-           "runs); rows in the loop's order.", ""]
+           "Each row is the model (the emulator fitted to every twin run made for this "
+           "dataset, its own uncertainty in the likelihood) or the real twin itself (fresh "
+           "runs at the fitted point); rows in the loop's order.", ""]
     qrows = {int(v): k for k, v in quoted.items()}
     cols = ["", "stage", "what it is", "chi2", "dof", "fitted parameters", "chi2/dof",
             "p_value"]
@@ -128,12 +128,16 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
     p["note"] = p["note"].fillna("")
     if "constrained" not in p.columns:
         p["constrained"] = None
-    md += ["| name | role | value | se | constrained by the data | note |",
-           "|---|---|---|---|---|---|"]
+    md += ["| name | role | value | se | 95 % profile interval | constrained by the data | "
+           "note |", "|---|---|---|---|---|---|---|"]
     for _, r in p.iterrows():
         c = r["constrained"]
-        md.append("| %s | %s | %s | %s | %s | %s |"
-                  % (r["name"], r["role"], _cell(r["value"]), _cell(r.get("se")),
+        lo, hi = r.get("profile_lo"), r.get("profile_hi")
+        iv = ("-" if lo is None or pd.isna(lo) else "%s - %s%s" % (
+            _cell(lo), _cell(hi), " (open at the %s bound)" % r["profile_open"]
+            if isinstance(r.get("profile_open"), str) and r["profile_open"] else ""))
+        md.append("| %s | %s | %s | %s | %s | %s | %s |"
+                  % (r["name"], r["role"], _cell(r["value"]), _cell(r.get("se")), iv,
                      "-" if c is None or pd.isna(c) else ("yes" if bool(c) else "**no**"),
                      r["note"]))
     md += ["", "The rule, once: " + UNCONSTRAINED_RULE + ".", "", "## Candidates", ""]
@@ -173,13 +177,21 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                          "; %d of %d bootstrap datasets named an effect at the nominal level"
                          % (bs["n_false"], bs["n_draws"]) if bs else ""))
     md += ["", "![ranking](ranking.png)", "",
-           "Model: %d twin runs at the dataset's conditions (%d new this time), anchor %s%s; "
-           "wall time %.0f s." % (len(res.model_runs), i["new_runs"], _fmt_theta(i["anchor"]),
-                                  ("; re-anchored %d time(s)" % len(i["reanchors"]))
-                                  if i["reanchors"] else "", i["wall_s"]), ""]
+           "Model: the emulator fitted to %d twin runs at the dataset's conditions (%d new this "
+           "time; waves: %s), reference point %s; wall time %.0f s."
+           % (len(res.model_runs), i["new_runs"], _wave_counts(res.model_runs),
+              _fmt_theta(i["reference_point"]), i["wall_s"]), ""]
     if fake:
         md += ["*%s.*" % FAKE_WORDS, ""]
     return "\n".join(md)
+
+
+def _wave_counts(runs) -> str:
+    if "wave" not in runs.columns:
+        return "-"
+    n = runs.groupby(runs["wave"].astype(str), sort=False).size()
+    return ", ".join("%s %d runs" % ("wave " + k if k[:1].isdigit() else k, v)
+                     for k, v in n.items())
 
 
 def comparison_page(cmp, dataset, figures=()) -> str:
