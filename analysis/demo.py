@@ -20,19 +20,23 @@ Then it prints the contract lines (4-seed means)::
 
 (the calibrated line: the twin at results/apparatus/measured_apparatus.json's parameters,
 ``--replicates`` seeds, when that profile exists; else the signature library's committed
-anchor runs) and runs the loop on Table 3 (:mod:`analysis.loop`) into results/demo/loop/.
+anchor runs) and runs the loop (:mod:`analysis.loop`) twice with no new twin run, from the
+committed run table (data/twin_runs): on Table 3 into results/demo/loop/ and on a blind dataset
+with a hidden effect at conditions the paper never ran into results/demo/blind_loop/
+(:data:`DEMO_LOOPS`); a loop whose runs are not all committed prints its plan instead.
 
     python -m analysis.demo [--replicates 4] [--workers 2] [--record-s 0.5] [--no-loop]
 """
 import argparse
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from analysis.config import (DEMO_DIR, MEASURED_APPARATUS_PROFILE, PAPER_APPARATUS_PROFILE,
-                             PAPER_TABLE3_DIR, twin_config)
+                             PAPER_TABLE3_DIR, RESULTS_DIR, twin_config)
 from analysis.run_configs import condition_configs
 
 
@@ -131,6 +135,40 @@ def calibrated_lines(cond, lib_dir=None):
     return t, line, meta["theta_ref"]
 
 
+#: the loops the demo shows, from the committed run table (data/twin_runs): (sub-folder, dataset,
+#: what it is, extra options of python -m analysis.loop)
+DEMO_LOOPS = (
+    ("loop", PAPER_TABLE3_DIR, "Table 3, the paper's measurements (v sd 1.5 % assumed: Table 3 "
+     "states none)", ()),
+    ("blind_loop", RESULTS_DIR / "open_world" / "effects" / "eff_p01", "a blind dataset at six conditions the paper never ran, an arc motion of the "
+     "jar hidden (truth in results/open_world/effects/truth)", ("--per-wave", "6",
+                                                               "--null-draws", "10")),
+)
+
+
+def demo_loops(out, workers) -> list:
+    """The loop on each of :data:`DEMO_LOOPS` with no new twin run (``--budget-runs 0``): from
+    the cache and the committed run table. A loop whose runs are not all there is not run; the
+    line says what it would cost (``make loop`` runs it)."""
+    from analysis import loop
+    lines = []
+    for sub, ds, words, extra in DEMO_LOOPS:
+        args = ["--dataset", str(ds), "--out", str(Path(out) / sub), "--workers", str(workers),
+                *extra]
+        print("the loop on %s -> %s/%s" % (words, out, sub))
+        rc = loop.main(args + ["--budget-runs", "0"])
+        if rc == 3:
+            loop.main(args + ["--dry-run"])
+            lines.append("the loop on %s: not shown - its twin runs are not all in the "
+                         "committed run table yet (the plan above; run it with: python -m "
+                         "analysis.loop %s)" % (words, " ".join(args)))
+        elif rc != 0:
+            lines.append("the loop on %s failed (exit %d)" % (words, rc))
+        else:
+            lines.append("the loop on %s: %s/%s/report.md" % (words, out, sub))
+    return lines
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
@@ -223,13 +261,8 @@ def main(argv=None):
                                                         .to_string(index=False)), file=sys.stderr)
         return 1
     if not a.no_loop:
-        from analysis import loop
-        print("the loop on Table 3 (v sd 1.5 %% assumed: Table 3 states none) -> %s/loop"
-              % a.out)
-        rc = loop.main(["--dataset", str(PAPER_TABLE3_DIR), "--out", str(out / "loop"),
-                        "--workers", str(a.workers)])
-        if rc != 0:
-            return rc
+        for line in demo_loops(out, a.workers):
+            print(line)
     print("wrote %s (%.0f s)" % (out, time.time() - t0))
     return 0
 

@@ -134,10 +134,27 @@ class EmulatedTwin:
 
     def inputs_of(self, runs: pd.DataFrame) -> pd.DataFrame:
         """Emulator inputs of training runs: the base parameters as run (read from each run's
-        config, so a stated stroke is the one run), the effect strengths, the condition."""
+        config, so a stated stroke is the one run), the effect strengths, the condition. A
+        table without configs (a loop's ``model_runs.csv``) gives the design's columns and
+        the condition of its ``condition_id`` (a stated stroke applied as the design does)."""
         X = pd.DataFrame({n: runs[n].to_numpy(float) for n in self.space.effect_names})
-        for n in self.space.base_names + list(CONDITION_INPUTS):
-            X[n] = [float(c[n]) for c in runs["config"]]
+        if "config" in runs:
+            for n in self.space.base_names + list(CONDITION_INPUTS):
+                X[n] = [float(c[n]) for c in runs["config"]]
+            return X[list(self.bounds())]
+        cids = list(self.conditions["condition_id"])
+        unknown = sorted(set(runs["condition_id"]) - set(cids))
+        if unknown:
+            raise ValueError("runs at conditions the model does not hold: %s" % unknown)
+        row = runs["condition_id"].map({c: i for i, c in enumerate(cids)}).to_numpy(int)
+        for n in CONDITION_INPUTS:
+            X[n] = self._X_cond[n].to_numpy(float)[row]
+        for n in self.space.base_names:
+            X[n] = runs[n].to_numpy(float)
+        stated = self.conditions.get("amplitude_mm")
+        if stated is not None and "amplitude_m" in X:
+            a = stated.to_numpy(float)[row] * 1e-3
+            X["amplitude_m"] = np.where(np.isfinite(a), a, X["amplitude_m"])
         return X[list(self.bounds())]
 
     def fit(self, runs: pd.DataFrame):

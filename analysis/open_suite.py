@@ -68,7 +68,17 @@ def strength_ranges() -> dict:
     return {k: c.s_max for k, c in candidates().items() if c.kind == "dem"}
 
 
-def score(name, loop_info, diagnosis, staircase, truth) -> dict:
+def _interval(parameters, name):
+    """(lo, hi) of ``name``'s profile interval in a loop's parameters.csv, or None."""
+    if parameters is None or "profile_lo" not in parameters:
+        return None
+    r = parameters[parameters["name"] == name]
+    if not len(r) or not np.isfinite(float(r["profile_lo"].iloc[0])):
+        return None
+    return float(r["profile_lo"].iloc[0]), float(r["profile_hi"].iloc[0])
+
+
+def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict:
     """One summary row: what was hidden, what was found, whether the intervals cover it."""
     true = truth_strengths(truth)
     sig = diagnosis[diagnosis["significant"].astype(bool)].sort_values("rank")
@@ -85,16 +95,14 @@ def score(name, loop_info, diagnosis, staircase, truth) -> dict:
         if len(r):
             est, se = float(r["strength"].iloc[0]), float(r["strength_se"].iloc[0])
             row["%s_true" % k], row["%s_fit" % k], row["%s_se" % k] = s, est, se
-            cov.append(abs(est - s) <= 1.96 * se)
+            iv = _interval(parameters, k)
+            cov.append(iv[0] <= s <= iv[1] if iv else abs(est - s) <= 1.96 * se)
     row["covered"] = all(cov) if cov else np.nan
-    st = staircase.set_index("stage")["chi2_dof"]
+    st = staircase.drop_duplicates("stage", keep="last").set_index("stage")["chi2_dof"]
     model_stages = [s for s in st.index if s != "twin rerun"]
     row["chi2_dof_calibrated"] = float(st.get("calibrated", np.nan))
     row["chi2_dof_last"] = float(st[model_stages[-1]])
     row["chi2_dof_twin_rerun"] = float(st.get("twin rerun", np.nan))
-    # the real twin without any effect at the calibrated point (the rerun that precedes the
-    # diagnosis): where it fits the data, the twin itself does not need the hidden effect
-    row["chi2_dof_twin_without"] = float(st.get("twin rerun (calibrated)", np.nan))
     row["new_runs"] = loop_info.get("new_runs")
     row["wall_s"] = loop_info.get("wall_s")
     return row
@@ -103,25 +111,18 @@ def score(name, loop_info, diagnosis, staircase, truth) -> dict:
 #: an effect is detectable when, after the base parameters are recalibrated without it, the
 #: noise-free data it makes still miss the model by this chi2 (3 sigma on one parameter)
 DETECTABLE_CHI2 = 9.0
-#: a twin rerun fits the data when its chi2/dof is at most this (the suite's goal for the
-#: chi2/dof after the last add)
-TWIN_FITS_CHI2_DOF = 1.5
 
 
-def first_model(dataset):
-    """The loop's first model from cached runs only (None when a run is missing), and its
-    observations."""
-    from analysis.loop import fit_observations
-    from analysis.open_model import BudgetError, OpenTwinModel
-    from analysis.twin_model import dataset_observations, yield_times_of
-    obs0, fl, _ = dataset_observations(dataset, True)
-    try:
-        m = OpenTwinModel(dataset.conditions, yield_times_of(dataset), flight_conditions=fl,
-                          velocity_frame=dataset.velocity_frame, budget_runs=0,
-                          progress=False).fit()
-    except BudgetError:
+def loop_model(dataset, loop_dir):
+    """The loop's final model (the emulator refitted to every run in ``loop_dir``'s
+    model_runs.csv; no run starts) and its observations; (None, None) without the table."""
+    from analysis.loop import LoopSettings, fit_observations, read_stage
+    runs_csv = Path(loop_dir) / "model_runs.csv"
+    if not runs_csv.is_file():
         return None, None
-    return m, fit_observations(obs0, m)
+    st = read_stage(dataset, LoopSettings(), track=False, log=lambda _: None)
+    m = st.model.fit(pd.read_csv(runs_csv))
+    return m, fit_observations(st.obs0, m)
 
 
 def _leftover_chi2(m, obs, truth, true, held) -> float:
@@ -149,21 +150,21 @@ def _true_dem(truth) -> dict:
     return {k: v for k, v in truth_strengths(truth).items() if candidates()[k].kind == "dem"}
 
 
-def detectable_chi2(dataset, truth) -> float:
-    """The chi2 the hidden DEM effects leave after recalibration without them: the loop's first
-    model (cached runs only) predicts the dataset's observables, noise-free, at the true base
+def detectable_chi2(dataset, truth, loop_dir) -> float:
+    """The chi2 the hidden DEM effects leave after recalibration without them: the loop's
+    model (:func:`loop_model`) predicts the dataset's observables, noise-free, at the true base
     parameters with the true effects on; the base parameters are then fitted without effects,
-    with the dataset's sds. NaN when there is no DEM effect or a run is missing."""
+    with the dataset's sds. NaN when there is no DEM effect or no model."""
     true = _true_dem(truth)
     if not true:
         return float("nan")
-    m, obs = first_model(dataset)
+    m, obs = loop_model(dataset, loop_dir)
     if m is None:
         return float("nan")
     return _leftover_chi2(m, obs, truth, true, {})
 
 
-def detectable_each(dataset, truth) -> dict:
+def detectable_each(dataset, truth, loop_dir) -> dict:
     """effect -> the chi2 each hidden DEM effect leaves beyond the others: the noise-free data
     of all hidden effects, the base parameters fitted with every OTHER hidden effect on at its
     true strength. An effect under :data:`DETECTABLE_CHI2` here cannot be told from a shift of
@@ -172,7 +173,7 @@ def detectable_each(dataset, truth) -> dict:
     true = _true_dem(truth)
     if not true:
         return {}
-    m, obs = first_model(dataset)
+    m, obs = loop_model(dataset, loop_dir)
     if m is None:
         return {}
     return {k: _leftover_chi2(m, obs, truth, true, {j: s for j, s in true.items() if j != k})
@@ -225,10 +226,12 @@ def check_outputs(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, score_o
 
 
 def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
-              score_only=False, **loop_kw):
-    """Run the loop on every dataset (resuming) and return the summary table; ``score_only``:
-    score the datasets whose loop already ran, run none."""
+              score_only=False, settings=None, workers=2):
+    """Run the loop (``settings``: :class:`analysis.loop.LoopSettings`, its frame 'auto') on
+    every dataset (resuming) and return the summary table; ``score_only``: score the datasets
+    whose loop already ran, run none."""
     from analysis.loop import run_loop, write_loop
+    from analysis.twin_runs import TwinRuns
     from analysis.measurements import load_dataset
     datasets_dir, out_dir = Path(datasets_dir), Path(out_dir)
     check_outputs(datasets_dir, out_dir, only, score_only)
@@ -243,16 +246,19 @@ def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
                 continue
             ds = load_dataset(datasets_dir / name)
             log("== %s" % name)
-            res = run_loop(ds, log=log, **loop_kw)
+            res = run_loop(ds, settings, log=log, base_config={"frame": "auto"},
+                           twin=TwinRuns(workers=workers))
             write_loop(res, dest, ds, protected=[datasets_dir / name])
         info = json.loads((dest / "loop.json").read_text())
         row = score(name, info, pd.read_csv(dest / "diagnosis.csv"),
-                    pd.read_csv(dest / "staircase.csv"), truth)
+                    pd.read_csv(dest / "staircase.csv"), truth,
+                    pd.read_csv(dest / "parameters.csv")
+                    if (dest / "parameters.csv").is_file() else None)
         if row["n_hidden"]:
             ds = load_dataset(datasets_dir / name)
-            row["detectable_chi2"] = detectable_chi2(ds, truth)
+            row["detectable_chi2"] = detectable_chi2(ds, truth, dest)
             if row["n_hidden"] >= 2:
-                each = detectable_each(ds, truth)
+                each = detectable_each(ds, truth, dest)
                 for k, v in each.items():
                     row["%s_beyond_chi2" % k] = v
                 row["detectable_min_chi2"] = min(each.values()) if each else np.nan
@@ -332,15 +338,6 @@ def goal_lines(summ) -> list:
              % (len(det), len(one), det["first_named"].sum() if "first_named" in det
                 else det["all_named"].sum(), len(det),
                 (det["all_named"] & det["no_other"]).sum(), len(det)))
-    if "chi2_dof_twin_without" in one and len(one):
-        hit = one["first_named"].astype(bool)
-        fits = one["chi2_dof_twin_without"] <= TWIN_FITS_CHI2_DOF
-        L.append("  the real twin without any effect, rerun at the calibrated point, fits the "
-                 "data at chi2/dof <= %.1f in %d of the %d one-effect datasets missed and in %d "
-                 "of the %d named (a fit that good leaves the effect little to explain, but "
-                 "does not rule it out)"
-                 % (TWIN_FITS_CHI2_DOF, int((fits & ~hit).sum()), int((~hit).sum()),
-                    int((fits & hit).sum()), int(hit.sum())))
     L.append("two effects hidden -> both named: %d / %d (goal >= 80 %%)"
              % (two["all_named"].sum(), len(two)))
     if "detectable_min_chi2" in two and len(two):
@@ -366,14 +363,13 @@ def main(argv=None):
     ap.add_argument("--only", action="append", help="only this dataset (repeatable)")
     ap.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
     ap.add_argument("--no-rerun", action="store_true", help="skip each loop's twin rerun")
-    ap.add_argument("--max-reanchor", type=int, default=2,
-                    help="re-anchorings allowed per loop [-] (0: keep the first model)")
     ap.add_argument("--null-draws", type=int, default=20,
                     help="bootstrap draws per diagnosis step [datasets] (0: nominal threshold only)")
     ap.add_argument("--score-only", action="store_true",
                     help="score the datasets whose loop already ran in --out, run no loop")
     a = ap.parse_args(argv)
     from analysis.atomic_dir import MARKER, OutputError, atomic_file
+    from analysis.loop import LoopSettings
     try:
         check_outputs(a.datasets, a.out, a.only, a.score_only)
     except (OutputError, ValueError, OSError) as exc:
@@ -382,8 +378,8 @@ def main(argv=None):
     out = Path(a.out)
     summ = run_suite(a.datasets, a.out, only=a.only, score_only=a.score_only,
                      workers=a.workers,
-                     rerun=not a.no_rerun, max_reanchor=a.max_reanchor,
-                     null_draws=a.null_draws, log=lambda s: print(s, file=sys.stderr))
+                     settings=LoopSettings(rerun=not a.no_rerun, null_draws=a.null_draws),
+                     log=lambda s: print(s, file=sys.stderr))
     out.mkdir(parents=True, exist_ok=True)
     if not (out / MARKER).exists():
         (out / MARKER).write_text("written by the mill twin project; a rerun may replace "

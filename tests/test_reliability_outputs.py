@@ -291,10 +291,10 @@ ROWS = [
      ["--max-reanchor", "-1"], None, []),
     ("loop-max-refits-negative-dry-run", _loop("--dry-run", "--max-refits", "-1"),
      ["--max-refits", "-1"], None, []),
-    ("loop-replicates-zero", _loop("--fake", "--replicates", "0"), ["--replicates", ">= 1"],
+    ("loop-replicates-one", _loop("--fake", "--replicates", "1"), ["--replicates", ">= 2"],
      None, []),
-    ("loop-diff-replicates-zero", _loop("--fake", "--diff-replicates", "0"),
-     ["--diff-replicates", ">= 1"], None, []),
+    ("loop-diff-replicates-negative", _loop("--fake", "--diff-replicates", "-1"),
+     ["--diff-replicates", ">= 0"], None, []),
     ("loop-rerun-replicates-zero", _loop("--fake", "--rerun-replicates", "0"),
      ["--rerun-replicates", ">= 1"], None, []),
     ("loop-alpha-nan", _loop("--dry-run", "--alpha", "nan"), ["--alpha", "(0, 1)", "nan"],
@@ -566,56 +566,6 @@ def _valid(cfg) -> bool:
     return True
 
 
-@pytest.mark.parametrize("p", sorted(BASE_STEPS))
-def test_response_levels_stay_inside_the_bounds(p):
-    from analysis.open_model import MIN_LEVEL_STEPS, response_levels
-    lo, hi = PARAMETERS[p][1], PARAMETERS[p][2]
-    step = BASE_STEPS[p]
-    for ref in _bounds(p) + [CALIBRATED[p][0] + 0.3 * step, 0.5 * sum(CALIBRATED[p])]:
-        levels = response_levels(p, ref)
-        assert len(set(levels)) == 2
-        for v in levels:
-            assert lo <= v <= hi and _valid({p: v}), (p, ref, levels)
-            assert abs(v - ref) >= MIN_LEVEL_STEPS * step * (1 - 1e-3), (p, ref, levels)
-    # far from the bounds: the symmetric anchor -+ one step, as before
-    mid = 0.5 * sum(CALIBRATED[p])
-    assert response_levels(p, mid) == tuple(float("%.4g" % (mid + s * step)) for s in (-1, 1))
-
-
-def test_the_plan_at_anchors_on_every_bound_builds_no_config_outside(tmp_path):
-    from analysis.open_model import OpenTwinModel
-    from analysis.fake_twin import run_fake_twin
-    conds = pd.DataFrame({"condition_id": ["a", "b"], "frequency_hz": [22.3, 28.0],
-                          "ball_diameter_mm": [19.0, 16.0]})
-    mid = {k: 0.5 * sum(v) for k, v in CALIBRATED.items()}
-    n = 0
-    for p in sorted(BASE_STEPS):
-        for b in _bounds(p):
-            m = OpenTwinModel(conds, {}, theta_ref=dict(mid, **{p: b}), runner=run_fake_twin,
-                              runs_dir=tmp_path, workers=1, progress=False, known_runs=None)
-            plan = m.plan("all")
-            bad = [c for c in plan["config"] if not _valid(c)]
-            assert not bad, (p, b, bad[:1])
-            base = plan[(plan["role"] == "base") & (plan["name"] == p)]
-            assert base["value"].nunique() == 2
-            n += len(plan)
-    assert n > 0
-
-
-def test_the_quadratic_takes_asymmetric_and_one_sided_points():
-    """The response through the real points: a quadratic is reproduced exactly whether the
-    levels sit symmetric, clipped on one side or both beyond the anchor."""
-    from analysis.open_model import _poly_response
-
-    def f(x):
-        return np.array([3.0 * x - 7.0 * x * x, -2.0 * x + 0.5 * x * x])
-    for xs in ([-0.15, 0.0, 0.15], [-0.1486, 0.0, 0.15], [0.0, 0.15, 0.30]):
-        xs = np.array(xs)
-        ds = np.vstack([f(x) for x in xs])
-        for dx in np.linspace(xs[0], xs[-1], 7):
-            assert np.allclose(_poly_response(xs, ds, dx), f(dx), atol=1e-12)
-
-
 @pytest.fixture(scope="module")
 def fake_dataset(tmp_path_factory):
     """A FAKE-twin dataset at the issue's three conditions (22.3 Hz / 19 mm, 22.7 / 16,
@@ -636,42 +586,43 @@ def fake_dataset(tmp_path_factory):
     return ds
 
 
-@pytest.mark.parametrize("corner", ["lower", "upper"])
-def test_loop_with_anchors_on_the_bounds_never_exits_2_after_its_runs(
-        corner, fake_dataset, tmp_path, monkeypatch, capsys):
-    """Fault injection: the loop's first anchor on every calibration bound at once (rolling
-    friction 0.1, below one step; restitution 0.1; static friction 0.3; stroke 10 mm - or
-    all at their upper bounds). Every twin run it makes is inside the run config's bounds and
-    it ends with a verdict (exit 0), never the bad-input code 2 after its runs started."""
-    runs = tmp_path / "fake_runs"
-    monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", runs)
-    anchor = {k: v[0 if corner == "lower" else 1] for k, v in CALIBRATED.items()}
-    monkeypatch.setattr(loop, "reference_parameters", lambda: dict(anchor))
-    rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "out"), "--fake",
-                    "--workers", "1", "--null-draws", "0", "--rerun-replicates", "1",
-                    "--max-refits", "0"])
-    err = capsys.readouterr().err
-    assert rc == 0, err[-2000:]
-    configs = [json.loads(m.read_text())["config"] for m in runs.glob("*/meta.json")]
-    assert configs and all(_valid(c) for c in configs)
-    assert any(c["rolling_friction"] == anchor["rolling_friction"] for c in configs)
+def test_the_design_builds_no_config_outside_the_bounds():
+    """Every wave-0 run of the loop's design (the priors' Latin hypercube, one effect on in
+    half the points, the reference point) is a config the run config accepts - also with the
+    reference point on every calibration bound at once."""
+    from analysis.emulated_twin import EmulatedTwin
+    from analysis.history_matching import design_runs, initial_design
+    conds = pd.DataFrame({"condition_id": ["a", "b"], "frequency_hz": [22.3, 28.0],
+                          "ball_diameter_mm": [19.0, 16.0]})
+    ds = type("D", (), {"conditions": conds})
+    sp = loop.loop_space(ds)
+    pts = initial_design(sp, 40, 0)
+    runs = design_runs(sp, pts, conds, seeds=(0,))
+    for corner in (0, 1):
+        m = EmulatedTwin(conds, sp, theta_ref={k: v[corner] for k, v in CALIBRATED.items()})
+        ref = m.point(m.theta_ref)
+        ref.insert(0, "point", -1)
+        runs = pd.concat([runs, design_runs(sp, ref, conds, seeds=(500,))])
+    bad = [c for c in runs["config"] if not _valid(c)]
+    assert not bad, bad[:1]
+    assert len(runs) == 2 * 40 + 2 * 2
 
 
 def test_dry_run_counts_the_runs_the_loop_then_makes(fake_dataset, tmp_path, monkeypatch,
                                                      capsys):
-    """The dry run's total (the whole model's plan and the twin rerun) is the number of runs
-    the loop then makes on the FAKE twin (no re-anchoring, no refits: nothing left open)."""
+    """With no refinement wave and one rerun the dry run's total is exact: the number of runs
+    the loop then makes on the FAKE twin (the waves' count is a most)."""
     runs = tmp_path / "fake_runs"
     monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", runs)
     opts = ["--dataset", str(fake_dataset), "--out", str(tmp_path / "out"), "--fake",
-            "--workers", "1", "--null-draws", "0", "--rerun-replicates", "1",
-            "--max-refits", "0", "--max-reanchor", "0"]
+            "--workers", "1", "--null-draws", "0", "--rerun-replicates", "1", "--points", "12",
+            "--waves", "0", "--confirm-rounds", "1", "--no-intervals"]
     assert loop.main(opts + ["--dry-run"]) == 0
     total = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("total: ")]
     assert len(total) == 1
-    planned = int(total[0].split()[1])
+    planned = int(total[0].split()[3])
     assert loop.main(opts) == 0, capsys.readouterr().err[-2000:]
-    assert len(list(runs.glob("*/meta.json"))) == planned
+    assert len(list(runs.glob("*/meta.json"))) == planned == (12 + 3) * 3 + 3
 
 
 def test_a_failing_twin_run_is_one_line_and_not_the_bad_input_code(work, monkeypatch, capsys):

@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import calibrate, demo, open_model, run_configs
+from analysis import calibrate, demo, run_configs
 from analysis.config import twin_config
 from analysis.sweep import prepare_configs
 from analysis.twin_model import library_configs
@@ -100,7 +100,7 @@ def test_call_sites_give_one_run_id_for_one_physics():
                          {"condition_id": "f25_d20.6", "frequency_hz": 25.0,
                           "ball_diameter_mm": 20.6}])
     base = {"record_s": 0.3}
-    om = [open_model.condition_configs(ph, THETA, 0, base)
+    om = [run_configs.condition_config(ph, THETA, 0, base)
           for ph in cond.to_dict("records")]
     lib = [r[4] for r in library_configs(cond, THETA, replicates=1, base=base)
            if r[0] == "none"]
@@ -110,7 +110,7 @@ def test_call_sites_give_one_run_id_for_one_physics():
     assert ids(om) == ids(lib) == ids(dm) == ids(cal)
     assert len(set(ids(om))) == 2
     # the open model with a stated stroke is the library at that stroke
-    om_a = open_model.condition_configs(dict(cond.iloc[0], amplitude_mm=13.1), THETA, 0, base)
+    om_a = run_configs.condition_config(dict(cond.iloc[0], amplitude_mm=13.1), THETA, 0, base)
     lib_a = library_configs(cond.iloc[:1], dict(THETA, amplitude_m=0.0131), replicates=1,
                             base=base)[0][4]
     assert twin_config.run_id(om_a) == twin_config.run_id(lib_a) != ids(om)[0]

@@ -2,10 +2,10 @@
 
 Default dataset: ``results/open_world/datasets/visco`` (6 frequency / ball pairs outside Table 3,
 21-31 Hz and 16-21 mm, a viscoelastic wall hidden). The loop (:func:`analysis.loop.run_loop`,
-defaults of ``python -m analysis.loop``: anchor 3 seeds, base and effect responses, forward
-selection, the twin reruns and refits) runs in a fresh temporary runs folder with the scene in
+defaults of ``python -m analysis.loop``: wave 0, the refinement waves, forward selection, the
+twin reruns at the final point) runs in a fresh temporary runs folder with the scene in
 ``--frame`` (default 'auto': the jar frame where the effects allow it), so no run comes from
-a cache or from the committed tables (their runs are lab-frame runs: other run ids); then the
+a cache or from the committed run table (it is not read: run_table points nowhere); then the
 same loop once more on the now filled cache. Prints and writes
 ``results/bench/loop_cold.txt``: wall times, twin runs, the machine's load before the start.
 The temporary runs folder is deleted at the end (``--keep-runs DIR`` keeps them there).
@@ -46,6 +46,7 @@ def main(argv=None):
     a = p.parse_args(argv)
     from analysis.loop import run_loop
     from analysis.measurements import load_dataset
+    from analysis.twin_runs import TwinRuns, run_wall_s
     ds = load_dataset(a.dataset)
     if a.keep_runs:
         runs = Path(a.keep_runs)
@@ -57,15 +58,15 @@ def main(argv=None):
     else:
         runs = Path(tempfile.mkdtemp(prefix="bench-loop-cold-"))
     load = os.getloadavg()[0]
-    from analysis.open_model import run_wall_s
     per_run_s = run_wall_s({"frame": a.frame})       # what the dry run would assume now
     lines = []
     try:
         times = []
         for label in ("empty cache", "cached"):
             t0 = time.perf_counter()
-            res = run_loop(ds, base_config={"frame": a.frame}, workers=a.workers,
-                           runs_dir=str(runs), progress=True,
+            twin = TwinRuns(workers=a.workers, runs_dir=runs, base_config={"frame": a.frame},
+                            run_table=runs / "no-table.csv")
+            res = run_loop(ds, twin=twin, base_config={"frame": a.frame},
                            log=lambda s: print(s, file=sys.stderr))
             wall = time.perf_counter() - t0
             times.append(wall)

@@ -53,12 +53,11 @@ def plot_strengths(summ, s_max, ax, *, synthetic: bool = True):
 
 def plot_chi2(summ, ax, *, synthetic: bool = True, fits_at: float = 1.5):
     """chi2/dof of each dataset: calibrated without effects, after the loop's last add, and the
-    twin rerun without effects at the calibrated point; grouped by how many effects were
+    twin rerun at the final point; grouped by how many effects were
     hidden; the line at ``fits_at`` is the suite's 'fits' goal."""
     order = summ.sort_values(["n_hidden", "dataset"]).reset_index(drop=True)
     x = np.arange(len(order))
     marks = (("chi2_dof_calibrated", "calibrated, no effect", "s", "0.6"),
-             ("chi2_dof_twin_without", "twin rerun, no effect", "v", "tab:purple"),
              ("chi2_dof_last", "after the last add", "o", "k"),
              ("chi2_dof_twin_rerun", "twin rerun, final point", "x", "tab:green"))
     for col, lab, m, c in marks:

@@ -25,11 +25,10 @@ from analysis.report.markdown import (fmt, fmt_signed, frame_table_lines, has_ta
                                       is_number, md_table, synthetic_banner, write_atomic)
 from analysis.report.stage_pages import (apparatus_identification_page, apparatus_screen_page,
                                          comparison_page, demo_page, diagnosis_page,
-                                         effect_transfer_page, frame_equivalence_page,
+                                         frame_equivalence_page,
                                          hidden_demo_page, hidden_suite_comparison_section,
                                          hidden_suite_page, loop_page, open_suite_page,
-                                         paper_diagnosis_page, refit_coverage_page,
-                                         ridge_check_page, signatures_page)
+                                         paper_diagnosis_page, signatures_page)
 from analysis.report.study_pages import (EXTERNAL_PAGE_NAMES, EXTERNAL_PAGES, GENERATED_NOTE,
                                          GOAL_CAL_MAX_V_PCT, GOAL_CAL_MEAN_V_PCT, GOAL_CAL_RUNS,
                                          GOAL_OBS_FCOL_HZ, GOAL_OBS_RMS_PX, GOAL_OBS_V_PCT,
@@ -57,7 +56,7 @@ __all__ = [
     "render_index", "render_page",
     # stage pages
     "apparatus_identification_page", "apparatus_screen_page", "comparison_page", "demo_page",
-    "diagnosis_page", "effect_transfer_page", "frame_equivalence_page", "hidden_demo_page",
+    "diagnosis_page", "frame_equivalence_page", "hidden_demo_page",
     "hidden_suite_comparison_section", "hidden_suite_page", "loop_page", "open_suite_page",
-    "paper_diagnosis_page", "refit_coverage_page", "ridge_check_page", "signatures_page",
+    "paper_diagnosis_page", "signatures_page",
 ]

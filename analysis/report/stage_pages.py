@@ -20,11 +20,8 @@ function                                        written by (file)
                                                 ``README.md``)
 :func:`apparatus_identification_page`           ``analysis.studies.apparatus_identification``
 :func:`apparatus_screen_page`                   ``analysis.studies.apparatus_screen``
-:func:`effect_transfer_page`                    ``analysis.studies.effect_transfer``
 :func:`frame_equivalence_page`                  ``analysis.studies.frame_equivalence`` (``.md``)
 :func:`paper_diagnosis_page`                    ``analysis.studies.paper_diagnosis``
-:func:`refit_coverage_page`                     ``analysis.studies.refit_coverage``
-:func:`ridge_check_page`                        ``analysis.studies.ridge_check``
 ==============================================  ================================================
 """
 from __future__ import annotations
@@ -593,25 +590,6 @@ def apparatus_screen_page(summary, seeds, out) -> str:
     return "\n".join(lines) + "\n"
 
 
-def effect_transfer_page(n_runs, n_anchors, summ) -> str:
-    """``README.md`` of :mod:`analysis.studies.effect_transfer`: how many committed runs and
-    anchors were read, and per effect and observable the median leave-one-out ratios
-    (``summ``: effect, observable, n_conditions, ratio_constant, ratio_plane)."""
-    md = ["# Effect responses across conditions (leave-one-out)", "",
-          "Runs: every committed `model_runs.csv` beside a `loop.json` (%d runs, %d "
-          "anchors)." % (n_runs, n_anchors), "",
-          "Ratio = leave-one-out rms error / rms standard error of the measured changes "
-          "(medians over the levels and anchors); near 1: predicting the change from the "
-          "other conditions is as good as measuring it.", "",
-          "| effect | observable | conditions | ratio, constant | ratio, plane in (f, d) |",
-          "|---|---|---|---|---|"]
-    for r in summ.itertuples():
-        md.append("| %s | %s | %d | %.2f | %.2f |" % (r.effect, r.observable,
-                                                     r.n_conditions, r.ratio_constant,
-                                                     r.ratio_plane))
-    return "\n".join(md) + "\n"
-
-
 def frame_equivalence_page(tab, wall_lab, wall_jar, n_seeds, compared) -> str:
     """``frame_equivalence.md`` of :mod:`analysis.studies.frame_equivalence`: the jar frame
     against the lab frame per condition (``tab``), summarised over the ``compared``
@@ -668,27 +646,3 @@ def paper_diagnosis_page(diag, added, table, summary, name) -> str:
     return "\n".join(lines)
 
 
-def refit_coverage_page(t) -> str:
-    """``README.md`` of :mod:`analysis.studies.refit_coverage`: the coverage of the 95 %
-    intervals before and after the twin-corrected refits, one row per dataset and effect
-    (``t``: :func:`analysis.studies.refit_coverage.summary_rows`)."""
-    n = len(t)
-    lines = ["# Twin-corrected refits on the open-world loop's answers (SYNTHETIC)", "",
-             "95 %% interval covers the true strength: before %d / %d, after %d / %d "
-             "(goal >= 90 %%)" % (t["covered_before"].sum() if n else 0, n,
-                                  t["covered_after"].sum() if n else 0, n), "",
-             "| dataset | effect | truth | model fit | z | refitted | z | reruns |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in t.itertuples():
-        lines.append("| %s | %s | %.3g | %.3g +- %.2g | %+.1f | %.3g +- %.2g | %+.1f | %d |"
-                     % (r.dataset, r.effect, r.truth, r.before, r.before_se, r.z_before,
-                        r.after, r.after_se, r.z_after, r.reruns))
-    return "\n".join(lines) + "\n"
-
-
-def ridge_check_page(about, dataset_lines) -> str:
-    """``README.md`` of :mod:`analysis.studies.ridge_check`: what the check does (``about``,
-    the study's own description) and one line per dataset."""
-    return ("# Ridge check: the twin at the true and at the fitted point (SYNTHETIC)\n\n"
-            + about + "\n"
-            + "\n".join("- " + x for x in dataset_lines) + "\n")

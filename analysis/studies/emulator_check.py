@@ -56,7 +56,7 @@ REPLICATE_SEED0 = 500
 
 
 def design_space():
-    from analysis.open_model import DEFAULT_BASE
+    from analysis.loop import DEFAULT_BASE
     from analysis.catalog import CANDIDATES
     return DesignSpace.of(DEFAULT_BASE, tuple(c for c in CANDIDATES if c.kind == "dem"))
 
@@ -82,34 +82,22 @@ def plan(space, conditions, n_points, seed, replicates, base_config=None):
 
 
 def run_plan(runs, workers, fake=False, cached_only=False):
-    """Run (or read cached) every planned config; add run_id and the observables. With
-    ``cached_only`` no run starts: the runs already in the cache are read (a study still
-    running elsewhere is analysed as far as it got)."""
-    from analysis.config import RUNS_DIR
-    from analysis.sweep import prepare_configs, run_sweep
-    from analysis.twin_model import run_flights
-    runner, runs_dir = None, RUNS_DIR
-    if fake:
-        runner, runs_dir = "analysis.fake_twin:run_fake_twin", RESULTS_DIR / "runs_fake"
-    _, ids = prepare_configs(list(runs["config"]))
-    out = runs.copy()
-    out["run_id"] = ids
+    """Run (or read cached) every planned config; add run_id and the observables
+    (:class:`analysis.twin_runs.TwinRuns`). With ``cached_only`` no run starts: the runs
+    already in the cache are read (a study still running elsewhere is analysed as far as it
+    got)."""
+    from analysis.sweep import prepare_configs
+    from analysis.twin_runs import TwinRuns
+    twin = (TwinRuns(runner="analysis.fake_twin:run_fake_twin", runs_dir=RESULTS_DIR /
+                     "runs_fake", workers=workers) if fake else TwinRuns(workers=workers))
     if cached_only:
-        done = np.array([(Path(runs_dir) / i / "meta.json").is_file() for i in ids])
-        out = out[done].reset_index(drop=True)
-        if not len(out):
+        ids = prepare_configs(list(runs["config"]))[1]
+        done = np.array([(twin.runs_dir / i / "meta.json").is_file() or i in twin.table.index
+                         for i in ids])
+        runs = runs[done].reset_index(drop=True)
+        if not len(runs):
             raise RuntimeError("no run of the study is in the cache yet")
-    res = run_sweep(list(out["config"]), runner=runner, workers=workers, runs_dir=runs_dir)
-    if not res.ok:
-        raise RuntimeError("%d twin run(s) failed:\n%s" % (
-            res.n_failed, res.failed()[["run_id", "error"]].to_string()))
-    t = res.table.reset_index(drop=True)
-    for c in ("v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "motion_mode"):
-        out[c] = t[c].to_numpy() if c in t.columns else np.nan
-    fl = run_flights(list(out["run_id"]), runs_dir)
-    for c in fl.columns[1:]:
-        out[c] = fl[c].to_numpy(float)
-    return out
+    return twin(runs)
 
 
 def training_inputs(runs, space):

@@ -50,14 +50,14 @@ def lab_configs(lab_dir=LAB_RUNS):
     """(table of the lab anchor runs, their run configs) rebuilt from the loop's anchor and
     conditions; each rebuilt config's run id is checked against the table's."""
     from analysis.conditions import physics_table
-    from analysis.open_model import condition_configs
+    from analysis.run_configs import condition_config
     from analysis.sweep import prepare_configs
     info = json.loads((lab_dir / "loop.json").read_text())
     runs = pd.read_csv(lab_dir / "model_runs.csv")
     runs = runs[runs["role"] == "anchor"].reset_index(drop=True)
     phys = physics_table(pd.DataFrame(info["conditions"]).drop(columns=["label"]))
     by_id = {r["condition_id"]: r for r in phys.to_dict("records")}
-    cfgs = [condition_configs(by_id[c], info["anchor"], int(s))
+    cfgs = [condition_config(by_id[c], info["anchor"], int(s))
             for c, s in zip(runs["condition_id"], runs["seed"])]
     _, ids = prepare_configs(cfgs)
     bad = [i for i, (a, b) in enumerate(zip(ids, runs["run_id"])) if a != b]

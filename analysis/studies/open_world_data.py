@@ -60,11 +60,11 @@ def posterior_draw(k, calibration_dir=None, within_steps=1.0):
     """Base parameters of null dataset ``k``: a draw from the Table-3 calibration's posterior
     samples (results/calibration/posterior_samples.csv), seeded by ``k``, rounded to 4 digits,
     kept only where every parameter lies within ``within_steps`` response steps
-    (:data:`analysis.open_model.BASE_STEPS`) of the anchor - inside the model's measured
+    (:data:`analysis.parameter_space.BASE_STEPS`) of the anchor - inside the model's measured
     responses, where no re-anchoring is needed (a draw outside is redrawn; about half of the
     posterior lies outside one step of restitution or stroke)."""
     from analysis.config import CALIBRATION_DIR
-    from analysis.open_model import BASE_STEPS
+    from analysis.parameter_space import BASE_STEPS
     from analysis.twin_model import reference_parameters
     ref = reference_parameters()
     d = pd.read_csv(Path(calibration_dir or CALIBRATION_DIR) / "posterior_samples.csv")

@@ -65,22 +65,7 @@ def in_late_pattern(v_in_m_s, anchor_v_in_m_s):
     return np.asarray(v_in_m_s, float) < LATE_V_IN_FRAC * np.asarray(anchor_v_in_m_s, float)
 
 
-def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
-    """Impact observables (:mod:`analysis.flights`) of cached twin runs, one row per run id
-    (NaN where the operator finds no end-to-end impacts, e.g. a run in another motion mode, or
-    the run has no trajectory, e.g. the FAKE twin's)."""
-    from analysis.flights import FLIGHT_OBSERVABLES, FlightError, recording_flights
-    from analysis.config import RUNS_DIR
-    from analysis.observe import ObserveError
-    root = Path(runs_dir or RUNS_DIR)
-    rows = []
-    for rid in run_ids:
-        try:
-            vals = recording_flights(root / str(rid)).values
-        except (FlightError, ObserveError):
-            vals = {k: np.nan for k in FLIGHT_OBSERVABLES}
-        rows.append(dict(run_id=rid, **vals))
-    return pd.DataFrame(rows, columns=["run_id", *FLIGHT_OBSERVABLES])
+from analysis.twin_runs import run_flights  # noqa: E402,F401  (one declaration)
 
 
 def add_flight_columns(runs: pd.DataFrame, runs_dir=None) -> pd.DataFrame:
