@@ -12,7 +12,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        signatures hidden-demo bench-hidden loop open-world calibrate apparatus effect-transfer \
+        signatures hidden-demo bench-hidden loop open-world calibrate apparatus \
         emulator-check
 
 help:
@@ -25,7 +25,6 @@ help:
 	@echo "make open-world - blind open-world datasets and the loop on them -> results/open_world/datasets/, loop/README.md"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
-	@echo "make effect-transfer - effect responses across conditions (leave-one-out) -> results/studies/effect_transfer/"
 	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 + held-out runs; about 1.5 h on 2 cores) -> results/studies/emulator_check/"
 	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"
 	@echo "make geometry | facet-study | timestep-study | signatures - regenerate committed studies"
@@ -74,7 +73,7 @@ bench-dem: setup
 bench-profile: setup
 	$(VPY) -m analysis.bench.profile
 
-# the whole loop on 6 conditions never run: empty cache, then cached (about 40 min on 2 cores)
+# the whole loop on 6 conditions never run: empty cache, then cached
 bench-loop: setup
 	$(VPY) -m analysis.bench.loop_cold
 
@@ -126,10 +125,6 @@ open-world: setup
 # design at a blind dataset's conditions, leave-out of whole points and the loop's committed runs
 emulator-check: setup
 	$(VPY) -m analysis.studies.emulator_check --points 24 --workers 2
-
-# an effect's response predicted at each condition from the others (committed runs, seconds)
-effect-transfer: venv
-	$(VPY) -m analysis.studies.effect_transfer
 
 calibrate: setup
 	$(VPY) -m analysis.calibrate --out results/calibration

@@ -1212,9 +1212,12 @@ def _main(argv=None):
     ap.add_argument("--fake", action="store_true",
                     help="use the FAKE analytic twin (tests and demonstrations only)")
     # the anchored model's options (before the emulator): accepted, see CHANGELOG.md
-    ap.add_argument("--max-refits", type=int, default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--diff-replicates", type=int, default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--max-reanchor", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--max-refits", type=int, default=None,
+                    help="[rounds] the earlier form of --confirm-rounds: N asks for N + 1")
+    ap.add_argument("--diff-replicates", type=int, default=None,
+                    help="[seeds] accepted for earlier command lines; no effect")
+    ap.add_argument("--max-reanchor", type=int, default=None,
+                    help="[re-anchorings] accepted for earlier command lines; no effect")
     a = ap.parse_args(argv)
     try:
         # every option and the output (its parent included) before the dataset is read or

@@ -243,9 +243,12 @@ def add_to_table(run_ids, path=None, runs_dir=None) -> int:
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m analysis.twin_runs",
                                  description="Append cached real twin runs to the committed "
-                                 "run table (data/twin_runs/runs.csv).")
+                                 "run table (data/twin_runs/runs.csv).",
+                                 epilog="example: python -m analysis.twin_runs --add "
+                                 "results/loop/my_mill/model_runs.csv")
     ap.add_argument("--add", nargs="+", required=True, metavar="CSV",
-                    help="tables with a run_id column (a loop's model_runs.csv, rerun_runs.csv)")
+                    help="[files] tables with a run_id column (a loop's model_runs.csv, "
+                    "rerun_runs.csv)")
     a = ap.parse_args(argv)
     ids = []
     try:

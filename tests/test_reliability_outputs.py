@@ -233,13 +233,6 @@ ROWS = [
     ("frame-equivalence-out-in-a-source-folder",
      _py("frame_equivalence", lambda w: ["--out", str(REPO_ROOT / "yade_scripts" / "fe")]),
      ["--out", "outside results/"], REPO_ROOT / "yade_scripts", []),
-    ("refit-coverage-out-unmarked-folder",
-     _py("refit_coverage", lambda w: ["--loops", str(w / "in"), "--out", str(w / "notes")]),
-     ["--out", "did not write"], None, []),
-    ("refit-coverage-out-inside-its-loops",
-     _py("refit_coverage", lambda w: ["--loops", str(w / "notes"),
-                                      "--out", str(w / "notes" / "sub")]),
-     ["--out", "input"], None, []),
     ("hidden-blind-data-out-is-a-file",
      _py("hidden_blind_data", lambda w: ["--out", str(w / "file.txt")]),
      ["--out", "is a file"], None, []),
@@ -321,9 +314,9 @@ ROWS = [
      ["--out", "did not write"], None, []),
     # --- the loop's dataset: a single condition leaves no degree of freedom
     ("loop-single-condition", _loop("--fake", "--workers", "1", ds="one"),
-     ["1 condition", "0 degrees of freedom", "undefined", "more conditions"], None, []),
+     ["1 condition", "-2 degrees of freedom", "undefined", "more conditions"], None, []),
     ("loop-single-condition-dry-run", _loop("--dry-run", ds="one"),
-     ["0 degrees of freedom"], None, []),
+     ["-2 degrees of freedom"], None, []),
 ]
 
 PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: error: ",
@@ -332,7 +325,6 @@ PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: 
           "profile": "profile_scene.py: error: ",
           "bench_profile": "analysis.bench.profile: error: ",
           "frame_equivalence": "frame_equivalence: error: ",
-          "refit_coverage": "refit_coverage: error: ",
           "hidden_blind_data": "hidden_blind_data: error: ",
           "open_world_data": "open_world_data: error: ",
           "open_suite": "analysis.open_suite: error: ",
@@ -341,7 +333,6 @@ PREFIX = {"observe": "analysis.observe: error: ", "flights": "analysis.flights: 
 #: the commands run as ``python -m <module>`` in a subprocess
 MODULES = {"bench_profile": "analysis.bench.profile",
            "frame_equivalence": "analysis.studies.frame_equivalence",
-           "refit_coverage": "analysis.studies.refit_coverage",
            "hidden_blind_data": "analysis.studies.hidden_blind_data",
            "open_world_data": "analysis.studies.open_world_data",
            "open_suite": "analysis.open_suite", "twin_model": "analysis.twin_model",
@@ -485,25 +476,33 @@ def test_sweep_replaces_its_own_tables(work, capsys):
 
 def test_dof_refused_or_capped_before_planning(work):
     from analysis.measurements import load_dataset
-    with pytest.raises(ValueError, match="0 degrees of freedom"):
+    with pytest.raises(ValueError, match="-2 degrees of freedom"):
         loop.dof_limits(load_dataset(work / "one"), 3)
     two = work / "two"
     shutil.copytree(work / "ds", two)
     for name in ("conditions.csv", "summary.csv"):
         lines = (work / "ds" / name).read_text().splitlines()
         (two / name).write_text("\n".join(lines[:3]) + "\n")
-    # 2 conditions: v and f_col each, 2 friction priors, 4 base parameters: 2 dof, 1 effect
-    assert loop.dof_limits(load_dataset(two), 3) == (2, 1)
+    # 2 conditions: v and f_col each for 4 base parameters (the priors bound the design, they
+    # are no pseudo-observations): 0 dof, refused
+    with pytest.raises(ValueError, match="leave 0 degrees of freedom"):
+        loop.dof_limits(load_dataset(two), 3)
+    three = work / "three"
+    shutil.copytree(work / "ds", three)
+    for name in ("conditions.csv", "summary.csv"):
+        lines = (work / "ds" / name).read_text().splitlines()
+        (three / name).write_text("\n".join(lines[:4]) + "\n")
+    assert loop.dof_limits(load_dataset(three), 3) == (2, 1)
     dof, n = loop.dof_limits(load_dataset(work / "ds"), 3)
-    assert dof == 2 * 8 + 2 - 4 and n == 3
+    assert dof == 2 * 8 - 4 and n == 3
 
 
-def test_loop_dry_run_on_two_conditions_says_the_effects_are_capped(work, capsys):
-    two = work / "two"
+def test_loop_dry_run_on_three_conditions_says_the_effects_are_capped(work, capsys):
+    two = work / "three"
     shutil.copytree(work / "ds", two)
     for name in ("conditions.csv", "summary.csv"):
         lines = (work / "ds" / name).read_text().splitlines()
-        (two / name).write_text("\n".join(lines[:3]) + "\n")
+        (two / name).write_text("\n".join(lines[:4]) + "\n")
     assert loop.main(["--dataset", str(two), "--out", str(work / "lo"), "--dry-run",
                       "--fake"]) == 0
     err = capsys.readouterr().err

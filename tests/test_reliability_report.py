@@ -25,16 +25,15 @@ from analysis.report import loop_words as lw  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: the loop's staircase on Table 3 in results/demo/loop (the issue's example)
+#: the loop's staircase on the blind dataset eff_p01, real twin (results/demo/blind_loop)
 DEMO_STAIRCASE = pd.DataFrame({
-    "stage": ["baseline", "calibrated", "calibrated, twin-corrected",
-              "calibrated, twin-corrected 2", "twin rerun (calibrated)", "twin-corrected",
-              "twin rerun"],
-    "chi2": [44.12, 16.27, 56.95, 40.24, 30.70, 30.33, 30.70],
-    "dof": [18, 14, 14, 14, 14, 14, 14],
-    "chi2_dof": [2.451, 1.162, 4.068, 2.874, 2.193, 2.166, 2.193],
-    "p_value": [5.5e-4, 0.297, 4e-7, 2.3e-4, 6.1e-3, 6.9e-3, 6.1e-3],
-    "n_params": [0, 4, 4, 4, 4, 4, 4]})
+    "stage": ["baseline", "calibrated", "+ arc_motion", "+ powder_layer", "twin rerun",
+              "refitted on the twin reruns", "twin rerun", "refitted on the twin reruns"],
+    "chi2": [3863.0, 2309.0, 168.5, 62.25, 361.8, 117.0, 416.0, 119.3],
+    "dof": [66, 60, 59, 58, 58, 58, 58, 58],
+    "chi2_dof": [58.53, 38.48, 2.856, 1.073, 6.238, 2.017, 7.172, 2.057],
+    "p_value": [0.0, 0.0, 1.8e-12, 0.328, 1.7e-45, 7.4e-6, 1.4e-55, 3.9e-6],
+    "n_params": [0, 6, 7, 8, 8, 8, 8, 8]})
 
 
 def _no_nan(s):
@@ -185,16 +184,16 @@ def test_staircase_is_linear_labelled_and_marks_what_the_verdict_quotes(fake):
         assert b.x0 >= fb.x0 - 1
     words = [t.get_text() for t in yt]
     assert words[1] == "calibrated  [model]"
-    assert words[3] == "calibrated, twin-corrected 2  [model on twin reruns]"
+    assert words[5] == "refitted on the twin reruns  [model]"
     assert words[6] == "twin rerun  [real twin]"
-    # the verdict quotes the 4th bar as 'calibrated' (the 2.87) and the twin rerun
+    # the verdict quotes 'calibrated', the last model row (final) and the last twin rerun
     q = lw.quoted_stages(DEMO_STAIRCASE)
-    assert q == {"calibrated": 3, "twin rerun": 6}
+    assert q == {"calibrated": 1, "final": 7, "twin rerun": 6}
     bold = [i for i, t in enumerate(yt) if t.get_fontweight() == "bold"]
-    assert bold == [3, 6]
+    assert bold == [1, 6, 7]
     texts = [t.get_text() for t in ax.texts]
-    assert sum("* verdict" in t for t in texts) == 2
-    assert any(t.startswith("2.87") and "verdict" in t for t in texts)
+    assert sum("* verdict" in t for t in texts) == 3
+    assert any(t.startswith("7.17") and "verdict" in t for t in texts)
     assert ("FAKE" in ax.get_title()) == fake
     plt.close(fig)
 

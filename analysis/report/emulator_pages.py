@@ -48,28 +48,3 @@ def emulator_check_page(leave_out, heldout, *, n_runs, n_points, replicates, dat
     return "\n".join(lines) + "\n"
 
 
-def emulated_loop_page(*, dataset, words, staircase, params, n_runs, waves, wall_s,
-                       fake=False):
-    """README.md of an emulated-loop study folder."""
-    lines = ["# The loop's stages on the one model of the twin: %s" % dataset, ""]
-    if fake:
-        lines += ["**FAKE: made by the analytic stand-in (`--fake`), not the twin.**", ""]
-    lines += ["Made by `python -m analysis.studies.emulated_loop` (docs/emulator.md): waves of "
-              "one design, calibration and forward selection on the emulator (its sd in the "
-              "likelihood), the twin at the final point (its runs then refit the emulator), "
-              "profile-likelihood intervals. %d twin runs, %.0f min." % (n_runs, wall_s / 60),
-              ""]
-    lines += ["- " + w for w in words]
-    lines += ["", "## Waves: share of the candidates not ruled out (implausibility < 3)", ""]
-    for w, fr in waves.items():
-        lines.append("- wave %s: %s" % (w, ", ".join("%s %.1f %%" % (k, 100 * v)
-                                                     for k, v in fr.items())))
-    lines += ["", "## Staircase (chi2/dof; `model` is the emulator, `real twin` the twin's "
-              "own runs)", ""]
-    lines += frame_table_lines(staircase, [c for c in ("stage", "model", "chi2", "dof",
-                                                       "chi2_dof") if c in staircase])
-    lines += ["", "## Parameters against the truth (95 % profile-likelihood intervals)", ""]
-    lines += frame_table_lines(params, [c for c in ("name", "role", "value", "se",
-                                                    "profile_lo", "profile_hi", "open",
-                                                    "truth", "covered") if c in params])
-    return "\n".join(lines) + "\n"

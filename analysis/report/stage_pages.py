@@ -131,7 +131,9 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
         c = r["constrained"]
         lo, hi = r.get("profile_lo"), r.get("profile_hi")
         iv = ("-" if lo is None or pd.isna(lo) else "%s - %s%s" % (
-            _cell(lo), _cell(hi), " (open at the %s bound)" % r["profile_open"]
+            _cell(lo), _cell(hi), " (open at the %s)" % (
+                "lower and upper bounds" if r["profile_open"] == "lower upper"
+                else "%s bound" % r["profile_open"])
             if isinstance(r.get("profile_open"), str) and r["profile_open"] else ""))
         md.append("| %s | %s | %s | %s | %s | %s | %s |"
                   % (r["name"], r["role"], _cell(r["value"]), _cell(r.get("se")), iv,

@@ -192,7 +192,7 @@ def summarise(per_run, by=("observable",)):
 
 
 def add_design_options(p):
-    """The wave-0 design's options, shared with :mod:`analysis.studies.emulated_loop` (the
+    """The wave-0 design's options, shared with the loop's (``python -m analysis.loop``: the
     same defaults make the same runs: the second study reads the first's from the cache)."""
     p.add_argument("--points", type=int, default=24, help="wave-0 design points [-] "
                    "(default %(default)s)")
