@@ -514,6 +514,7 @@ def test_ctrl_c_during_the_imports_is_one_line_and_130(work):
     p = subprocess.Popen([sys.executable, "-m", "analysis.loop", "--dataset",
                           str(PAPER_TABLE3_DIR), "--out", str(work / "lo"), "--dry-run"],
                          cwd=str(work), env=env, stdout=subprocess.PIPE,
+                         preexec_fn=_default_sigint,
                          stderr=subprocess.PIPE, text=True)
     time.sleep(1.0)                        # the interpreter is up; the imports take seconds
     p.send_signal(signal.SIGINT)
@@ -680,10 +681,16 @@ def test_the_other_writers_accept_their_own_earlier_output(work):
     assert (work / "foreign.csv").read_text() == "x,y\n1,2\n"
 
 
+def _default_sigint():
+    """The child starts with Ctrl-C's default disposition, as from a shell: a test process
+    that ignores SIGINT (a worker of the parallel test run can) would hand that on."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _python(code):
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                          text=True, timeout=60, cwd=str(REPO_ROOT))
+                          text=True, timeout=60, cwd=str(REPO_ROOT), preexec_fn=_default_sigint)
 
 
 def test_ctrl_c_while_the_package_loads_is_one_line_and_130():
