@@ -444,17 +444,14 @@ def emulator_share(model: EmulatedTwin, observations, points) -> np.ndarray:
     return np.max(p.latent_sd / np.maximum(obs["sd"].to_numpy(float)[None], 1e-30), axis=1)
 
 
-def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_waves,
-                   per_wave, replicates=3, seed=0, base_config=None, log=print,
-                   obs_chaos_runs=1.0, stop_share=None, best=None, replicate_seed0=500):
-    """Run wave 0 and up to ``n_waves`` refinement waves through ``simulate(runs) -> runs``
-    (adds the observables to a table of configs, e.g. the twin through the sweep); fit
-    ``model`` after each. With ``stop_share`` and ``best`` (callable(model) -> points, e.g. the
-    calibrated point and each candidate's best fit) the waves stop once the emulator's share of
-    the uncertainty there (:func:`emulator_share`) is below ``stop_share`` at every point.
-    The reference point ``model.theta_ref`` runs with seeds from ``replicate_seed0`` (the
-    chaos); every design point with seed ``seed`` (wave w: ``seed + w``).
-    Returns (model, points, {wave: fractions not ruled out})."""
+#: seeds of the reference point's replicates (the twin's chaos per condition)
+REFERENCE_SEED0 = 500
+
+
+def wave0_runs(model: EmulatedTwin, n_initial, replicates=3, seed=0, base_config=None,
+               replicate_seed0=REFERENCE_SEED0):
+    """(points, runs) of wave 0: the space-filling design at seed ``seed`` and the reference
+    point ``model.theta_ref`` (point -1) with seeds from ``replicate_seed0``."""
     space = model.space
     pts = initial_design(space, n_initial, seed)
     ref = model.point(model.theta_ref)
@@ -464,6 +461,23 @@ def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_
                       design_runs(space, ref, model.conditions,
                                   seeds=range(replicate_seed0, replicate_seed0 + replicates),
                                   base_config=base_config)], ignore_index=True)
+    return pts, runs
+
+
+def build_in_waves(model: EmulatedTwin, observations, simulate, *, n_initial, n_waves,
+                   per_wave, replicates=3, seed=0, base_config=None, log=print,
+                   obs_chaos_runs=1.0, stop_share=None, best=None,
+                   replicate_seed0=REFERENCE_SEED0):
+    """Run wave 0 and up to ``n_waves`` refinement waves through ``simulate(runs) -> runs``
+    (adds the observables to a table of configs, e.g. the twin through the sweep); fit
+    ``model`` after each. With ``stop_share`` and ``best`` (callable(model) -> points, e.g. the
+    calibrated point and each candidate's best fit) the waves stop once the emulator's share of
+    the uncertainty there (:func:`emulator_share`) is below ``stop_share`` at every point.
+    The reference point ``model.theta_ref`` runs with seeds from ``replicate_seed0`` (the
+    chaos); every design point with seed ``seed`` (wave w: ``seed + w``).
+    Returns (model, points, {wave: fractions not ruled out})."""
+    space = model.space
+    pts, runs = wave0_runs(model, n_initial, replicates, seed, base_config, replicate_seed0)
     runs["wave"] = 0
     log("wave 0: %d points + the reference point x %d seeds, %d runs"
         % (len(pts), replicates, len(runs)))

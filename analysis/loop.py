@@ -452,20 +452,9 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
 
 def wave0_runs(state: LoopState) -> pd.DataFrame:
     """The runs of wave 0 (what :func:`analysis.emulated_twin.build_in_waves` runs first)."""
-    from analysis.history_matching import design_runs, initial_design
-    s, m = state.settings, state.model
-    pts = initial_design(m.space, s.points, s.seed)
-    ref = m.point(m.theta_ref)
-    ref.insert(0, "point", -1)
-    return pd.concat([design_runs(m.space, pts, m.conditions, seeds=(s.seed,),
-                                  base_config=state.base_config),
-                      design_runs(m.space, ref, m.conditions,
-                                  seeds=range(REFERENCE_SEED0, REFERENCE_SEED0 + s.replicates),
-                                  base_config=state.base_config)], ignore_index=True)
-
-
-#: seeds of the reference point's replicates (build_in_waves' default)
-REFERENCE_SEED0 = 500
+    from analysis.emulated_twin import wave0_runs as design
+    s = state.settings
+    return design(state.model, s.points, s.replicates, s.seed, state.base_config)[1]
 
 
 def build_stage(state: LoopState, twin, log=print):
@@ -476,7 +465,7 @@ def build_stage(state: LoopState, twin, log=print):
                                     n_waves=s.waves, per_wave=s.per_wave,
                                     replicates=s.replicates, seed=s.seed,
                                     base_config=state.base_config, log=log,
-                                    obs_chaos_runs=1.0, replicate_seed0=REFERENCE_SEED0)
+                                    obs_chaos_runs=1.0)
     state.model, state.waves = model, hist
     state.obs = fit_observations(state.obs0, model)
 

@@ -117,11 +117,6 @@ class TwinRuns:
                       else committed_runs(run_table))
         self.new_runs = 0
 
-    @property
-    def fake(self):
-        return self.runner is not None and "fake" in str(getattr(self.runner, "__name__",
-                                                                 self.runner))
-
     def _ids(self, runs):
         from analysis.sweep import prepare_configs
         return prepare_configs(list(runs["config"]))[1]

@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.config import RESULTS_DIR
+from analysis.emulated_twin import REFERENCE_SEED0
 from analysis.emulator import GPEmulator
 from analysis.history_matching import (DesignSpace, design_runs, effect_input,
                                        initial_design)
@@ -51,8 +52,6 @@ CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
 DEFAULT_DATASET = RESULTS_DIR / "open_world" / "effects" / "eff_p01"
 DEFAULT_HELDOUT = RESULTS_DIR / "open_world" / "loop_effects_fix" / "eff_p01"
 DEFAULT_OUT = RESULTS_DIR / "studies" / "emulator_check"
-#: seed of the reference point's replicates (apart from the design's)
-REPLICATE_SEED0 = 500
 
 
 def design_space():
@@ -69,7 +68,7 @@ def plan(space, conditions, n_points, seed, replicates, base_config=None):
     ref = dict(reference_parameters(), **{n: 0.0 for n in space.effect_names})
     ref_pt = pd.DataFrame([dict(point=-1, **{n: ref[n] for n in space.names})])
     rep = design_runs(space, ref_pt, conditions,
-                      seeds=range(REPLICATE_SEED0, REPLICATE_SEED0 + replicates),
+                      seeds=range(REFERENCE_SEED0, REFERENCE_SEED0 + replicates),
                       base_config=base_config)
     # the replicates first (the chaos), then the points alternating between the halves of the
     # design without and with an effect: a study stopped early holds a usable prefix
