@@ -10,7 +10,8 @@ ONE operator for both sides (seed paper, Sec. 2.5 and 3.1.1, eqs 1-3, Figure 5):
    state flips only when the velocity crosses the OPPOSITE threshold, so noise near zero makes no
    false collisions;
 5. v_mean = time average of the speed over the record, E_kin = 1/2 m v_mean^2,
-   f_col = collisions / duration.
+   f_col = the inverse mean interval between collisions (``yade_scripts/twin_modes.collision_rate``,
+   the scene's own rule): not quantised by the record length, with its standard error.
 
 The same function serves a tracked video (:func:`observe_track`, :func:`observe_track_file`) and a
 twin recording (:func:`observe_recording`: trajectory.csv sampled at the camera rate and projected on
@@ -57,6 +58,7 @@ import pandas as pd
 from scipy.signal import savgol_filter, savgol_coeffs
 
 from analysis import config
+from yade_scripts.twin_modes import collision_rate
 
 #: Seed paper's camera (Chronos 1.4) frame rate [1/s] (declared with the run config)
 CAMERA_FPS = config.twin_config.CAMERA_FPS
@@ -99,9 +101,10 @@ class ObservationResult:
     e_kin_j : float
         1/2 m v_mean^2 [J] (NaN when the mass is unknown).
     f_col_hz : float
-        Collisions per second of observed time [1/s].
-    f_col_interval_hz : float
-        (n - 1) / (last - first collision time): a rate free of the +-1 edge quantisation [1/s].
+        Collision rate: the inverse mean interval between collisions within unbroken stretches
+        of the track (n / observed time when fewer than 2 intervals are seen) [1/s].
+    f_col_se_hz : float
+        Its standard error (renewal process: rate * sd(intervals) / (mean * sqrt(n))) [1/s].
     n_collisions : int
     collision_times_s : ndarray, shape (n_collisions,)
     t_s : ndarray, shape (m,)
@@ -131,7 +134,7 @@ class ObservationResult:
     v_mean_raw_m_s: float
     e_kin_j: float
     f_col_hz: float
-    f_col_interval_hz: float
+    f_col_se_hz: float
     n_collisions: int
     collision_times_s: np.ndarray
     t_s: np.ndarray
@@ -161,7 +164,7 @@ class ObservationResult:
         """One-row summary: the figures, the f_col plausibility flag and the parameters used."""
         row = {"v_mean_m_s": self.v_mean_m_s, "v_mean_raw_m_s": self.v_mean_raw_m_s,
                "e_kin_j": self.e_kin_j, "f_col_hz": self.f_col_hz,
-               "f_col_interval_hz": self.f_col_interval_hz, "n_collisions": self.n_collisions,
+               "f_col_se_hz": self.f_col_se_hz, "n_collisions": self.n_collisions,
                "duration_s": self.duration_s, "gap_fraction": self.gap_fraction,
                "n_kinks": self.n_kinks, "f_col_ratio_2f": self.f_col_ratio_2f,
                "f_col_suspect": self.f_col_suspect}
@@ -390,6 +393,8 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
     runs = [(a, b) for a, b in _runs(vpair) if b - a >= 3]
     # group runs separated by short gaps (bridged for counting)
     coll_times: list[float] = []
+    coll_segments: list[int] = []  # the bridged stretch each collision lies in
+    segment = -1
     n_kinks = 0
     duration = 0.0
     integral = 0.0
@@ -409,6 +414,9 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
             count_extra += tm[a] - prev_end_t - 1.0 / fps
             if prev_state != 0 and first_state != 0 and first_state != prev_state:
                 coll_times.append(0.5 * (prev_end_t + tm[a]))
+                coll_segments.append(segment)
+        else:
+            segment += 1
         zc_idx = []  # zero-crossing FD index (left sample) per collision in the run
         for fi in flips:
             # last sample before fi whose smoothed vx has the old sign
@@ -423,6 +431,7 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
             v0, v1 = vx_run[j], vx_run[j + 1]
             frac = v0 / (v0 - v1) if v0 != v1 else 0.5
             coll_times.append(tm[a + j] + frac * (tm[a + j + 1] - tm[a + j]))
+            coll_segments.append(segment)
             zc_idx.append(j)
         # kink test and segment-wise smoothing
         drop = np.zeros(b - a, bool)
@@ -476,8 +485,7 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
     v_mean_raw = integral_raw / (n_valid_fd / fps)
     ct = np.array(sorted(coll_times))
     n_col = len(ct)
-    f_col = n_col / (duration + count_extra)
-    f_int = (n_col - 1) / (ct[-1] - ct[0]) if n_col >= 3 else float("nan")
+    f_col, f_col_se = collision_rate(coll_times, duration + count_extra, coll_segments)
     e_kin = 0.5 * mass_kg * v_mean ** 2 if mass_kg is not None else float("nan")
     params = {"fps": fps, "frequency_hz": frequency_hz, "window_frames": w,
               "polyorder": polyorder, "deadband_m_s": db, "noise_sigma_m": sig_x,
@@ -486,7 +494,7 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
               "bridge_frames": bridge, "max_gap_fraction": max_gap_fraction}
     ratio = f_col / (2.0 * frequency_hz)
     return ObservationResult(float(v_mean), float(v_mean_raw), float(e_kin), float(f_col),
-                             float(f_int), n_col, ct, tm, vxs, vys, vxr, vyr, float(duration),
+                             float(f_col_se), n_col, ct, tm, vxs, vys, vxr, vyr, float(duration),
                              float(gap_fraction), n_kinks,
                              float(duration + count_extra), params,
                              f_col_ratio_2f=float(ratio),

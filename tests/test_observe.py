@@ -34,7 +34,9 @@ def test_sawtooth_speed_and_exact_collisions(f):
     assert r.n_collisions == len(rev)
     # collision times within one frame of the exact reversals
     assert np.max(np.abs(r.collision_times_s - rev)) < 1.0 / FPS
-    assert abs(r.f_col_hz - len(rev) / (t[-1] - t[0])) < 1e-9 + 1 / (t[-1] - t[0])
+    # the rate from the collision times is the true 2 f, not a count quantised by the record
+    assert r.f_col_hz == pytest.approx(2 * f, rel=1e-3)
+    assert r.f_col_se_hz < 1e-3 * 2 * f
 
 
 def test_plain_recipe_bias_is_what_kink_correction_removes():
@@ -89,7 +91,9 @@ def test_bounce_model_track_lab_and_jar():
         assert abs(r.v_mean_m_s / b.true_mean_speed(frame=frame) - 1) < 0.01
     tr = b.sample(FPS)
     r = observe_track(tr.t_s, tr.x_m, tr.y_m, fps=FPS, frequency_hz=25.0)
-    assert abs(r.f_col_hz - len(b.reversal_times()) / 0.4) <= 1.0 / 0.4 + 1e-9
+    rt = np.sort(b.reversal_times())
+    truth = (len(rt) - 1) / (rt[-1] - rt[0])
+    assert r.f_col_hz == pytest.approx(truth, abs=max(3 * r.f_col_se_hz, 1e-3 * truth))
     # the jar frame via the jar_x_m column equals sampling in the jar frame
     rj = observe_track(tr.t_s, tr.x_m, tr.y_m, fps=FPS, frequency_hz=25.0, frame="jar",
                        jar_x_m=tr.jar_x_m)
@@ -128,6 +132,41 @@ def test_gaps_are_not_differentiated_and_reported():
     assert abs(r.v_mean_m_s / 2.0 - 1) < 0.01  # no spike from differencing across a gap
     assert np.all(np.isnan(r.vx_raw_m_s[299:340]))
     assert r.count_duration_s < t[-1] - t[0]
+    # the reversal lost in the long gap does not lengthen the mean interval: still 2 f
+    assert r.n_collisions == len(rev) - 1
+    assert r.f_col_hz == pytest.approx(50.0, rel=1e-3)
+
+
+def test_collision_rate_against_known_processes():
+    from yade_scripts.twin_modes import collision_rate
+    # periodic at 55 /s in a 0.5 s record: 27 or 28 impacts, n / duration reads 54 or 56
+    for t0 in (0.001, 0.009, 0.017):
+        times = t0 + np.arange(40) / 55.0
+        times = times[times < 0.5]
+        rate, se = collision_rate(times, 0.5)
+        assert rate == pytest.approx(55.0, rel=1e-12) and se < 1e-9
+        assert abs(len(times) / 0.5 - 55.0) > 0.9
+    # Poisson impacts at 50 /s: the stated se covers the truth as often as it claims
+    rng = np.random.default_rng(3)
+    z = []
+    for _ in range(400):
+        times = np.cumsum(rng.exponential(1 / 50.0, 60))
+        rate, se = collision_rate(times, times[-1])
+        z.append((rate - 50.0) / se)
+    z = np.abs(np.array(z))
+    assert 0.90 <= np.mean(z < 1.96) <= 0.99
+    # a jittered periodic sequence: se shrinks with the jitter
+    times = np.arange(30) / 45.0 + rng.normal(0, 1e-4, 30)
+    rate, se = collision_rate(times, 30 / 45.0)
+    assert abs(rate - 45.0) < 4 * se + 1e-3 and se < 0.05
+    # segments: an impact missed in a gap does not count as a double interval
+    times = np.delete(np.arange(30) / 50.0, 15)
+    seg = (np.arange(29) >= 15).astype(int)
+    assert collision_rate(times, 0.6, seg)[0] == pytest.approx(50.0)
+    assert collision_rate(times, 0.6)[0] < 49.0
+    # fewer than 2 intervals: the Poisson count
+    assert collision_rate([0.1, 0.2], 0.5) == pytest.approx((4.0, math.sqrt(2) / 0.5))
+    assert collision_rate([], 0.5) == pytest.approx((0.0, 2.0))
 
 
 def test_too_many_gaps_is_a_clear_error():

@@ -60,7 +60,7 @@ import numpy as np  # noqa: E402
 import twin_config  # noqa: E402
 from twin_config import ConfigError  # noqa: E402
 from out_rule import OutRefused, check_run_out, may_replace  # noqa: E402
-from twin_modes import classify_motion  # noqa: E402
+from twin_modes import classify_motion, collision_rate  # noqa: E402
 from geometry.stl_io import MeshError, ball_fit_error  # noqa: E402
 from geometry.jar import mesh_for_config  # noqa: E402
 from effects import jar_config, load_effects  # noqa: E402
@@ -715,6 +715,7 @@ def summarize(twin):
     end_sides = np.array([g[1] for g in groups])
     v_mean = float(speed.mean()) if len(speed) else float("nan")
     cyl_frac = twin.cyl_contact_time / duration if duration > 0 else 0.0
+    f_col, f_col_se = collision_rate(end_times, duration)
     mode, stats = classify_motion(v_mean, max(cfg["frequency_hz"], 1e-12), end_times, end_sides,
                                   duration, cyl_frac)
     return {
@@ -722,7 +723,8 @@ def summarize(twin):
         "v_mean_jar_m_s": float(np.linalg.norm(vrel, axis=1).mean()) if len(speed) else None,
         "vx_abs_mean_m_s": float(np.abs(v[:, 0]).mean()) if len(speed) else None,
         "e_kin_j": 0.5 * twin.mass * v_mean ** 2,
-        "f_col_hz": len(groups) / duration,
+        "f_col_hz": f_col,
+        "f_col_se_hz": f_col_se,
         "n_impacts": len(twin.impacts),
         "n_end_impacts": sum(1 for row in twin.impacts if row[8] == "end_cap"),
         "n_collisions": len(groups),

@@ -5,8 +5,9 @@ by ``analysis/`` (the project's venv). A run config is a flat JSON object whose 
 in :data:`PARAMETERS` (units in the names, SI values) plus ``effects`` (a dict of switched-on
 effects and their strengths, see ``analysis/effects``). Unknown keys are an error.
 
-The run id is a hash of the complete config (defaults filled in) and of the STL file's bytes, so
-equal configs share one cached recording.
+The run id is a hash of the complete config (defaults filled in), of the STL file's bytes and of
+:data:`SUMMARY_VERSION`, so equal configs share one cached recording and a recording summarised
+by an older scene is not taken for a new one.
 """
 import hashlib
 import json
@@ -266,8 +267,14 @@ def resolve_stl(cfg, root=None):
     return p
 
 
+#: Version of the summary the scene writes (meta.json). Part of the run id: 2 = f_col from the
+#: impact times (``twin_modes.collision_rate``); 1 (not hashed) = impacts / record length.
+SUMMARY_VERSION = 2
+
+
 def run_id(cfg, root=None):
-    """Hash of the complete config and of the STL bytes: 16 hex characters."""
+    """Hash of the complete config, of the STL bytes and of the summary version: 16 hex
+    characters."""
     full = complete_config(cfg)
     for k, v in HASH_NEUTRAL.items():
         if full.get(k) == v:
@@ -277,6 +284,7 @@ def run_id(cfg, root=None):
         del full["stl_path"], full["stl_units"]
     h = hashlib.sha256()
     h.update(json.dumps(full, sort_keys=True, separators=(",", ":")).encode())
+    h.update(b"summary%d" % SUMMARY_VERSION)
     stl = None if parametric else resolve_stl(full, root)
     if not parametric and os.path.exists(stl):
         with open(stl, "rb") as fh:
