@@ -87,11 +87,12 @@ def summarize_runs(conditions, configs, sweep_table):
         ok = [i for i in sel if t.loc[i, "status"] in ("done", "cached")]
         v = np.array([t.loc[i, "v_mean_m_s"] for i in ok], float)
         f = np.array([t.loc[i, "f_col_hz"] for i in ok], float)
-        v_obs, f_obs = [], []
+        v_obs, f_obs, f_se = [], [], []
         for i in ok:
             o = observe_recording(t.loc[i, "run_dir"])
             v_obs.append(o.v_mean_m_s)
             f_obs.append(o.f_col_hz)
+            f_se.append(o.f_col_se_hz)
         modes = "/".join(sorted(set(str(t.loc[i, "motion_mode"]) for i in ok)))
         sd = lambda x: float(np.std(x, ddof=1)) if len(x) > 1 else float("nan")  # noqa: E731
         row = {
@@ -104,6 +105,8 @@ def summarize_runs(conditions, configs, sweep_table):
             "f_col_measured_hz": c.f_col_hz,
             "f_col_twin_hz": float(np.mean(f)) if len(f) else float("nan"),
             "f_col_twin_observed_hz": float(np.mean(f_obs)) if f_obs else float("nan"),
+            "f_col_twin_se_hz": (float(np.sqrt(np.sum(np.square(f_se)))) / len(f_se)
+                                 if f_se else float("nan")),
             "n_replicates": len(ok), "n_failed": len(sel) - len(ok), "motion_modes": modes,
         }
         row["v_diff_pct"] = 100 * (row["v_mean_twin_observed_m_s"] / c.v_mean_m_s - 1)

@@ -25,7 +25,7 @@ from analysis.report import loop_words as lw  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: the loop's staircase on the blind dataset eff_p01, real twin (results/demo/blind_loop)
+#: the loop's staircase on the blind dataset eff_p01, real twin (measured at commit ed6da5a)
 DEMO_STAIRCASE = pd.DataFrame({
     "stage": ["baseline", "calibrated", "+ arc_motion", "+ powder_layer", "twin rerun",
               "refitted on the twin reruns", "twin rerun", "refitted on the twin reruns"],
@@ -321,8 +321,8 @@ def test_demo_page_says_why_two_parameter_sets():
     from analysis.report import demo_page
     table = pd.DataFrame({c: [1.0] for c in (
         "v_mean_measured_m_s", "v_mean_twin_observed_m_s", "v_mean_twin_sd_m_s",
-        "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz", "f_col_diff_pct",
-        "n_replicates")}).assign(condition_id="c", motion_modes="end_to_end")
+        "v_diff_pct", "f_col_measured_hz", "f_col_twin_observed_hz", "f_col_twin_se_hz",
+        "f_col_diff_pct", "n_replicates")}).assign(condition_id="c", motion_modes="end_to_end")
     page = demo_page(table, {"amplitude_m": 0.015, "dt_s": 3e-6, "replicates": 4,
                              "record_s": 0.5, "wall_s": 1.0,
                              "apparatus": "the apparatus identified from the paper's DEM "
@@ -331,6 +331,8 @@ def test_demo_page_says_why_two_parameter_sets():
     para = sec.strip().split("\n\n")[0]
     assert para.count(". ") + 1 == 2 and para.endswith(".")        # two sentences
     assert "15.0 mm" in para and "EDEM" in para and "measured" in para
+    # f_col is read against 0.3 % of the measured value: 1 % off is not counted within it
+    assert "within 0.3 % of the measured value at 0 of 1 conditions" in page
 
 
 def test_results_index_lists_every_folder():
