@@ -20,7 +20,10 @@ GPEmulator` with the conditions' physics among its inputs).
   the observations is below the cut-off (3, Pukelsheim's three-sigma rule);
 * :func:`next_wave` - the next design points: drawn from the not-ruled-out part of a large
   candidate sample, spread by greedy maximin in the scaled inputs and weighted towards where
-  the emulator is least sure.
+  the emulator is least sure;
+* :func:`posterior_cloud` - a focus wave: design points drawn where a fit's posterior lies
+  (its Gaussian approximation, widened), with the effects it found on - the last wave of
+  history matching, run once the model is chosen.
 
 References
 ----------
@@ -48,6 +51,9 @@ EFFECT_SHARE = 0.5
 REFOCUS_MIN, REFOCUS_CENTRES, REFOCUS_SD = 64, 16, 0.03
 #: prefix of an effect strength's input name
 EFFECT_PREFIX = "effect:"
+#: a focus wave's cloud (:func:`posterior_cloud`): the fit's standard errors scaled by this,
+#: and the sd [fraction of the range] of a parameter whose standard error is unknown
+FOCUS_SCALE, FOCUS_MIN_SD = 2.0, 0.05
 
 
 def effect_input(name: str) -> str:
@@ -286,6 +292,56 @@ def refocus_sample(space: DesignSpace, cand: pd.DataFrame, imp_max, n, seed, eff
         x = centres[c].to_numpy(float)[k] + REFOCUS_SD * (hi - lo) * rng.standard_normal(n)
         out[c] = np.clip(x, lo, hi)
     return out[space.names]
+
+
+def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_points: int,
+                    seed: int, *, scale: float = FOCUS_SCALE) -> pd.DataFrame:
+    """``n_points`` design points where a fit's posterior lies (a focus wave).
+
+    A Latin hypercube in whitened coordinates mapped through the fit's Gaussian approximation
+    N(centre, scale^2 cov) over the inputs ``cov`` names that the space holds (the base
+    parameters fitted, the strengths of the effects found, named by :func:`effect_input`),
+    the correlations kept. Every other input sits at ``centre``'s value (an effect
+    not in ``centre`` is off). A standard error that is not finite or zero (a parameter on a
+    bound) counts as :data:`FOCUS_MIN_SD` of its range; none is wider than half its range (a
+    direction the data do not pin spreads over the box); points are clipped to the box.
+
+    Returns
+    -------
+    DataFrame (columns :meth:`DesignSpace.names`)
+    """
+    from scipy.stats import norm
+    if n_points < 1:
+        return pd.DataFrame(columns=space.names)
+    b = space.bounds()
+    unknown = [k for k in centre if k not in b]
+    if unknown:
+        raise ValueError("posterior_cloud: not inputs of the design space: %s" % unknown)
+    free = [k for k in cov.index if k in b]
+    lo = np.array([b[k][0] for k in free])
+    hi = np.array([b[k][1] for k in free])
+    mu = np.clip(np.array([float(centre.get(k, 0.0)) for k in free]), lo, hi)
+    c = cov.loc[free, free].to_numpy(float)
+    sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = c / np.outer(sd, sd)
+    corr = np.where(np.isfinite(corr), np.clip(corr, -1.0, 1.0), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    sd = np.where(np.isfinite(sd) & (sd > 0), scale * sd, FOCUS_MIN_SD * (hi - lo))
+    sd = np.minimum(sd, 0.5 * (hi - lo))
+    # the nearest valid correlation (a Gauss-Newton covariance near a bound may be indefinite)
+    w, v = np.linalg.eigh(corr)
+    L = v * np.sqrt(np.clip(w, 1e-9, None))
+    L /= np.sqrt(np.sum(L ** 2, axis=1, keepdims=True))
+    pts = pd.DataFrame({k: np.full(int(n_points), float(centre.get(k, 0.0)))
+                        for k in space.names})
+    if free:
+        u = qmc.LatinHypercube(d=len(free), rng=np.random.default_rng(seed)).random(n_points)
+        z = norm.ppf(np.clip(u, 1e-6, 1 - 1e-6))
+        x = np.clip(mu + (z @ L.T) * sd, lo, hi)
+        for i, k in enumerate(free):
+            pts[k] = x[:, i]
+    return pts[space.names]
 
 
 def design_runs(space: DesignSpace, points: pd.DataFrame, conditions, *, seeds=(0,),

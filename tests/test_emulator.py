@@ -12,7 +12,7 @@ from threadpoolctl import threadpool_limits
 from analysis.emulator import GPEmulator
 from analysis.history_matching import (DesignSpace, candidate_sample, effect_input,
                                        implausibility, initial_design, maximin_pick,
-                                       next_wave, not_ruled_out)
+                                       next_wave, not_ruled_out, posterior_cloud)
 from analysis.catalog import CANDIDATES
 
 BOUNDS = {"cr": (0.1, 0.7), "s": (0.0, 1.0), "f": (20.0, 32.0)}
@@ -272,3 +272,41 @@ def test_a_wave_refocuses_where_the_data_pin_a_parameter_sharply():
     assert len(pts) == 6
     assert np.all(np.abs(pts["amplitude_m"] - 0.0131) < 3 * 2e-6)
     assert np.all(np.abs(pts["restitution"] - 0.4) < 3 * 0.05)
+
+
+def test_posterior_cloud_follows_the_fit_and_stays_in_the_box():
+    """A focus wave about a known Gaussian posterior: each fitted input's spread is the scaled
+    standard error, the correlation is kept, the inputs not fitted sit at the centre, an effect
+    not found stays off; an se wider than the box spreads over it, clipped to the bounds."""
+    space = _space()
+    e0, e1 = space.effect_names[0], space.effect_names[1]
+    b = space.bounds()
+    centre = {"restitution": 0.40, "amplitude_m": 0.0130, "static_friction": 0.5,
+              "rolling_friction": 0.3, e0: 0.5 * b[e0][1]}
+    names = ["restitution", "amplitude_m", e0]
+    sd = np.array([0.01, 2e-5, 0.02 * b[e0][1]])
+    rho = np.array([[1.0, -0.8, 0.0], [-0.8, 1.0, 0.3], [0.0, 0.3, 1.0]])
+    cov = pd.DataFrame(rho * np.outer(sd, sd), index=names, columns=names)
+    pts = posterior_cloud(space, centre, cov, 400, seed=1, scale=2.0)
+    assert list(pts.columns) == space.names and len(pts) == 400
+    for k, s_k in zip(names, sd):
+        assert pts[k].std() == pytest.approx(2.0 * s_k, rel=0.1), k
+        assert pts[k].mean() == pytest.approx(centre[k], abs=0.2 * s_k), k
+    r = np.corrcoef(pts["restitution"], pts["amplitude_m"])[0, 1]
+    assert r == pytest.approx(-0.8, abs=0.06)
+    assert (pts["static_friction"] == 0.5).all() and (pts["rolling_friction"] == 0.3).all()
+    assert (pts[e1] == 0.0).all()                                  # not found: off
+    # a parameter the data do not pin (se far wider than its prior): over the box, clipped
+    wide = pd.DataFrame([[1.0]], index=["static_friction"], columns=["static_friction"])
+    w = posterior_cloud(space, centre, wide, 200, seed=2)
+    lo, hi = b["static_friction"]
+    assert w["static_friction"].between(lo, hi).all()
+    assert w["static_friction"].std() > 0.25 * (hi - lo)
+    # an se that is not finite (a parameter on its bound): 5 % of its range
+    nan = pd.DataFrame([[np.nan]], index=["restitution"], columns=["restitution"])
+    n = posterior_cloud(space, centre, nan, 200, seed=3)
+    lo, hi = b["restitution"]
+    assert n["restitution"].std() == pytest.approx(0.05 * (hi - lo), rel=0.15)
+    with pytest.raises(ValueError, match="not inputs"):
+        posterior_cloud(space, {"youngs_modulus": 1.0}, cov, 4, seed=0)
+    assert posterior_cloud(space, centre, cov, 0, seed=0).empty
