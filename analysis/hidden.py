@@ -4,7 +4,7 @@ A dataset made here looks like any measurement dataset (DESIGN.md format: datase
 conditions.csv, summary.csv with sd columns) and says nothing of how it was made beyond
 "SYNTHETIC"; the truth (effects, strengths, base config, seeds, noise, the twin's noise-free
 means) goes to a separate file, ``results/hidden/<name>.truth.json``, to be revealed after a blind
-compare / diagnose / add.
+loop (``python -m analysis.loop``).
 
     python -m analysis.hidden --name hidden_visco --effect viscoelastic_restitution:k=0.05 \
         [--replicates 2] [--v-rel-sd 0.015] [--f-col-sd-hz 1.0] [--seed 0] [--fake]
@@ -196,7 +196,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     track_tables, twin_flights = {}, {}
     if tracks:
         from analysis.config import RUNS_DIR
-        from analysis.twin_model import run_flights
+        from analysis.twin_runs import run_flights
         from analysis.observe import camera_track
         root = Path(runs_dir or RUNS_DIR)
         have = all((root / str(r) / "trajectory.csv").is_file() for r in t["run_id"])

@@ -83,11 +83,12 @@ from scipy import stats
 
 from analysis.atomic_dir import OutputError, check_out_dir, output_dir
 from analysis.conditions import ConditionError, label, physics_table
-from analysis.diagnose import BaseParameter, calibrate_base, diagnose
-from analysis.measurements import DatasetError, load_dataset
+from analysis.catalog import CANDIDATES, candidates
+from analysis.diagnose import (BaseParameter, calibrate_base, dataset_observations, diagnose,
+                               with_run_sd)
+from analysis.measurements import DatasetError, load_dataset, yield_times_of
+from analysis.parameter_space import reference_parameters
 from analysis.sweep import parse_key_value
-from analysis.twin_model import (CANDIDATES, candidates, dataset_observations,
-                                 reference_parameters, with_run_sd, yield_times_of)
 from analysis.twin_runs import BudgetError, TwinRuns
 
 #: candidate effects beyond this many are not added (a guard against chasing noise)
@@ -409,7 +410,7 @@ def loop_space(dataset, extra_effects=()):
     catalog and the optional entries asked for."""
     from analysis.history_matching import DesignSpace
     from analysis.run_configs import stated_amplitude_m
-    from analysis.twin_model import OPTIONAL_CANDIDATES
+    from analysis.catalog import OPTIONAL_CANDIDATES
     phys = physics_table(dataset.conditions)
     names = list(DEFAULT_BASE)
     if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
@@ -736,7 +737,7 @@ def optional_effects(names, base_config=None):
         an STL whose fillet is unknown)
     """
     from analysis.config import twin_config
-    from analysis.twin_model import OPTIONAL_CANDIDATES
+    from analysis.catalog import OPTIONAL_CANDIDATES
     from effects import jar_config
     opt = {c.name: c for c in OPTIONAL_CANDIDATES}
     out = []

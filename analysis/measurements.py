@@ -963,6 +963,14 @@ def yield_table(dataset: Dataset, yield_sd_pct: float = DEFAULT_YIELD_SD_PCT) ->
                         columns=cols)
 
 
+def yield_times_of(dataset: Dataset) -> dict:
+    """condition_id -> yield times [min] of a Dataset, in file order (empty without yields)."""
+    if dataset.yields is None:
+        return {}
+    return {cid: list(g["time_min"].astype(float))
+            for cid, g in dataset.yields.groupby("condition_id", sort=False)}
+
+
 def main(argv=None):
     """``python -m analysis.measurements DIR``: validate a dataset and print what it holds."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],

@@ -51,7 +51,7 @@ SIGMA_CHECK_NAME = "sigma_check.csv"
 
 def truth_strengths(truth) -> dict:
     """effect -> true strength in the diagnose coordinate (catalog parameter converted)."""
-    from analysis.twin_model import candidates
+    from analysis.catalog import candidates
     cands = candidates()
     out = {}
     for name, params in (truth.get("effects") or {}).items():
@@ -64,7 +64,7 @@ def truth_strengths(truth) -> dict:
 
 def strength_ranges() -> dict:
     """effect -> top of its diagnose range (the figure's unit of strength)."""
-    from analysis.twin_model import candidates
+    from analysis.catalog import candidates
     return {k: c.s_max for k, c in candidates().items() if c.kind == "dem"}
 
 
@@ -146,7 +146,7 @@ def _leftover_chi2(m, obs, truth, true, held) -> float:
 
 
 def _true_dem(truth) -> dict:
-    from analysis.twin_model import candidates
+    from analysis.catalog import candidates
     return {k: v for k, v in truth_strengths(truth).items() if candidates()[k].kind == "dem"}
 
 
@@ -324,7 +324,7 @@ def goal_lines(summ) -> list:
     eff = summ[summ["n_hidden"] >= 1]
     cov = eff["covered"].dropna()
     last = summ["chi2_dof_last"]
-    from analysis.twin_model import DECOYS
+    from analysis.catalog import DECOYS
     decoy = summ["found"].astype(str).apply(lambda f: any(d in f.split("+") for d in DECOYS))
     L = []
     L.append("no effect hidden -> 'nothing missing': %d / %d (goal >= 95 %% of >= 20)"

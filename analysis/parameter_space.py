@@ -16,7 +16,8 @@ The effects' strengths are declared by each effect's file (``analysis/effects``,
 range and strength coordinate); :func:`effect_strengths` lists them beside these.
 
 Every other module reads :data:`CALIBRATED`, :data:`APPARATUS`, :data:`PRIORS`,
-:data:`BASE_STEPS` from here.
+:data:`BASE_STEPS` and the reference point :func:`reference_parameters` (the Table-3
+calibration's posterior mean) from here.
 """
 from __future__ import annotations
 
@@ -82,6 +83,22 @@ APPARATUS = {k: p.prior for k, p in SPACE.items() if p.role == "apparatus"}
 PRIORS = {**CALIBRATED, **APPARATUS}
 #: the open model's base parameters and their response steps
 BASE_STEPS = {k: p.step for k, p in SPACE.items() if p.step is not None}
+
+
+def reference_parameters(calibration_dir=None) -> dict:
+    """theta_ref, the reference point of the base parameters: the Table-3 calibration's
+    posterior mean (restitution, static_friction, rolling_friction, amplitude_m; ``summary.json``
+    of :mod:`analysis.calibrate`, default results/calibration), rounded to 4 significant digits
+    (stable run ids)."""
+    import json
+    from pathlib import Path
+
+    from analysis.config import CALIBRATION_DIR
+    p = Path(calibration_dir or CALIBRATION_DIR) / "summary.json"
+    if not p.exists():
+        raise FileNotFoundError("%s missing: run the calibration first (make calibrate)" % p)
+    params = json.loads(p.read_text())["params"]
+    return {k: float("%.4g" % v) for k, v in params.items()}
 
 
 def effect_strengths() -> dict:

@@ -3,7 +3,7 @@
 ``load_effects({"name": {"param": value}}, side="dem")`` validates names and parameters against
 each module's ``DECLARATION`` and returns the effect objects of one side ('dem' for the YADE
 scene, 'kinetics' for the yield model, None for all). ``diagnose_entries()`` lists the effects'
-diagnose entries (the candidates of analysis.twin_model). Standard library only.
+diagnose entries (the candidates of analysis.catalog). Standard library only.
 """
 import importlib
 import math
@@ -32,7 +32,7 @@ def declaration(name):
     return importlib.import_module("effects." + name).DECLARATION
 
 
-#: keys of a declaration's optional "diagnose" entry: analysis.twin_model.Candidate's fields
+#: keys of a declaration's optional "diagnose" entry: analysis.catalog.Candidate's fields
 #: (param, s_max, unit; coord, p0, levels, replicates, fixed optional) and the entry's place in
 #: the catalog ("order", "optional", "decoy")
 DIAGNOSE_KEYS = {"order", "param", "s_max", "unit", "coord", "p0", "levels", "replicates",

@@ -16,7 +16,7 @@ DECLARATION = {
                      "description": "what it scales"},
     },
     "null": {"strength": 0.0},         # parameter values at which the scene is the base scene
-    # its diagnose candidate (analysis.twin_model; delete the entry if diagnose shall not look
+    # its diagnose candidate (analysis.catalog; delete the entry if diagnose shall not look
     # for this effect): the parameter the strength sets, the top of its diagnose range s_max
     # (in the strength coordinate, within the parameter's bounds) and the parameter's unit;
     # optional: "coord" 'linear' (strength = param, default), 'inv_square' (= (p0 / param)^2) or

@@ -453,3 +453,39 @@ def test_profile_interval_covers_the_truth_as_often_as_it_claims():
     assert 0.875 * n <= hits <= 0.99 * n, hits
     with pytest.raises(ValueError, match="not a fitted parameter"):
         profile_interval(predict, obs, base, "b", fit)
+
+
+def test_dataset_observations_add_the_jar_tracks_impact_observables():
+    """A dataset with a jar track: its observations are the summary (v_mean, f_col per
+    condition) and the five impact observables of that track; ``flights=False`` leaves them
+    out. with_run_sd keeps the larger of the operator's se and one twin run's scatter (both
+    measure one realisation's chaos) where the run's scatter names the key, and only there."""
+    from analysis.config import PAPER_TABLE3_DIR
+    from analysis.diagnose import dataset_observations, with_run_sd
+    from analysis.flights import FLIGHT_OBSERVABLES, dataset_flights
+    from analysis.measurements import Dataset, load_dataset
+    from tests.test_flights import impact_map_track
+    cond = load_dataset(PAPER_TABLE3_DIR).conditions[["condition_id", "frequency_hz",
+                                                      "ball_diameter_mm"]]
+    summ = pd.DataFrame({"condition_id": cond["condition_id"], "v_mean_m_s": 2.0,
+                         "v_mean_sd_m_s": 0.03, "f_col_hz": 50.0, "f_col_sd_hz": 1.0})
+    tr, _ = impact_map_track(e=0.3, frequency_hz=25.0)
+    ds = Dataset(name="jar", description="", source="test", velocity_frame="lab",
+                 conditions=cond, summary=summ, tracks={"f25_d20.6": tr})
+    obs, ids, fl = dataset_observations(ds)
+    assert len(obs) == 16 + 5 and ids == ["f25_d20.6"] and len(fl) == 5
+    assert set(obs.loc[obs["condition_id"] == "f25_d20.6", "observable"]) == \
+        {"v_mean_m_s", "f_col_hz", *FLIGHT_OBSERVABLES}
+    plain, ids0, fl0 = dataset_observations(ds, flights=False)
+    assert len(plain) == 16 and ids0 == [] and fl0 is None
+    pd.testing.assert_frame_equal(plain, obs.iloc[:16])
+    own = dataset_flights(ds).set_index("observable")["sd"]
+    run_sd = pd.Series({("f25_d20.6", "e_app"): 0.01, ("f25_d20.6", "v_in_m_s"): 0.0,
+                        ("elsewhere", "e_app"): 9.0})
+    out = with_run_sd(obs, run_sd)
+    got = out.set_index(["condition_id", "observable"])["sd"]
+    assert got[("f25_d20.6", "e_app")] == pytest.approx(max(own["e_app"], 0.01), rel=1e-12)
+    assert got[("f25_d20.6", "v_in_m_s")] == pytest.approx(own["v_in_m_s"], rel=1e-12)
+    rest = ~(out["observable"] == "e_app")
+    assert (out.loc[rest, "sd"].to_numpy() == obs.loc[rest, "sd"].to_numpy()).all()
+    pd.testing.assert_frame_equal(obs, dataset_observations(ds)[0])     # obs not modified

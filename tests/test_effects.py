@@ -50,13 +50,13 @@ def test_declaration_is_complete_and_consistent(name):
 
 
 def strength_to_param(coord, p0, s):
-    """analysis.twin_model.Candidate.param_value, restated: the parameter at strength s."""
+    """analysis.catalog.Candidate.param_value, restated: the parameter at strength s."""
     return {"linear": s, "inv_square": p0 / math.sqrt(s), "square": p0 * math.sqrt(s)}[coord]
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_diagnose_entry_is_well_formed(name):
-    """The diagnose candidate an effect declares (analysis.twin_model builds its catalog from
+    """The diagnose candidate an effect declares (analysis.catalog builds its catalog from
     these entries): a parameter of the effect in its unit, a range whose signature strengths
     all map into the parameter's bounds, a known strength coordinate."""
     d = effects.declaration(name)

@@ -76,6 +76,18 @@ def _full_dataset(tmp_path):
     return ds
 
 
+def test_yield_times_of_lists_each_conditions_times_in_file_order(tmp_path):
+    from analysis.measurements import yield_times_of
+    ds = load_dataset(PAPER_TABLE3_DIR)
+    assert yield_times_of(ds) == {}                               # no yields.csv
+    ds.yields = pd.DataFrame({"condition_id": ["f30_d17.5", "f25_d20.6", "f30_d17.5"],
+                              "time_min": [10, 5.0, 2.5], "yield_pct": [20.0, 10.0, 5.0]})
+    times = yield_times_of(ds)
+    assert times == {"f30_d17.5": [10.0, 2.5], "f25_d20.6": [5.0]}
+    assert list(times) == ["f30_d17.5", "f25_d20.6"]
+    assert all(isinstance(t, float) for ts in times.values() for t in ts)
+
+
 def test_write_load_round_trip(tmp_path):
     ds = _full_dataset(tmp_path)
     out = write_dataset(ds, tmp_path / "copy")

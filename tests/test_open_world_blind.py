@@ -88,9 +88,9 @@ def test_blind_case_generators_draw_what_they_say():
     every pair in turn; base parameters within one response step of the anchor; no decoy
     ever hidden; the same call gives the same cases (seeded)."""
     from itertools import combinations
-    from analysis.parameter_space import BASE_STEPS
+    from analysis.catalog import DECOYS, candidates
+    from analysis.parameter_space import BASE_STEPS, reference_parameters
     from analysis.studies import open_world_data as owd
-    from analysis.twin_model import DECOYS, candidates, reference_parameters
     cands, ref = candidates("dem"), reference_parameters()
     one, two = owd.effect_cases(8), owd.pair_cases(6)
     assert owd.pair_cases(6) == two

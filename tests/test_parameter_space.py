@@ -34,7 +34,25 @@ def test_a_prior_outside_the_physical_bounds_is_refused(monkeypatch):
 
 
 def test_effect_strengths_come_from_the_effect_declarations():
-    from analysis.twin_model import CANDIDATES
+    from analysis.catalog import CANDIDATES
     st = ps.effect_strengths()
     for c in CANDIDATES:
         assert st[c.name][:2] == (0.0, float(c.s_max))
+
+
+def test_reference_parameters_are_the_calibrations_posterior_mean(tmp_path):
+    """theta_ref: the Table-3 calibration's posterior mean (summary.json), rounded to 4
+    significant digits; a missing calibration names the command that makes it."""
+    import json
+    from analysis.config import CALIBRATION_DIR
+    ref = ps.reference_parameters()
+    params = json.loads((CALIBRATION_DIR / "summary.json").read_text())["params"]
+    assert set(ref) == set(params) >= {"restitution", "static_friction", "rolling_friction",
+                                       "amplitude_m"}
+    for k, v in params.items():
+        assert ref[k] == float("%.4g" % v)
+    (tmp_path / "summary.json").write_text(json.dumps({"params": {"restitution": 0.348712,
+                                                                  "amplitude_m": 0.01273456}}))
+    assert ps.reference_parameters(tmp_path) == {"restitution": 0.3487, "amplitude_m": 0.01273}
+    with pytest.raises(FileNotFoundError, match="make calibrate"):
+        ps.reference_parameters(tmp_path / "none")

@@ -62,7 +62,7 @@ def design_space():
 
 def plan(space, conditions, n_points, seed, replicates, base_config=None):
     """The study's runs: wave 0 at one seed per point, the reference point at ``replicates``."""
-    from analysis.twin_model import reference_parameters
+    from analysis.parameter_space import reference_parameters
     pts = initial_design(space, n_points, seed)
     runs = design_runs(space, pts, conditions, seeds=(seed,), base_config=base_config)
     ref = dict(reference_parameters(), **{n: 0.0 for n in space.effect_names})

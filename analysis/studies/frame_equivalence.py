@@ -105,7 +105,7 @@ def wall_times(ids, runs_dir=RUNS_DIR):
 
 def main(argv=None):
     from analysis.sweep import run_sweep
-    from analysis.twin_model import run_flights
+    from analysis.twin_runs import run_flights
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.studies.frame_equivalence "
                                  "--workers 2 --out results/studies/frame_equivalence")

@@ -28,7 +28,7 @@ from analysis.config import RESULTS_DIR
 
 OUT_DIR = RESULTS_DIR / "open_world" / "datasets"
 
-#: six conditions none of which the paper (or the committed library) ran
+#: six conditions none of which the paper ran
 CONDITIONS = pd.DataFrame({
     "condition_id": ["c1", "c2", "c3", "c4", "c5", "c6"],
     "frequency_hz": [26.0, 28.0, 24.0, 21.0, 31.0, 23.5],
@@ -65,7 +65,7 @@ def posterior_draw(k, calibration_dir=None, within_steps=1.0):
     posterior lies outside one step of restitution or stroke)."""
     from analysis.config import CALIBRATION_DIR
     from analysis.parameter_space import BASE_STEPS
-    from analysis.twin_model import reference_parameters
+    from analysis.parameter_space import reference_parameters
     ref = reference_parameters()
     d = pd.read_csv(Path(calibration_dir or CALIBRATION_DIR) / "posterior_samples.csv")
     rng = np.random.default_rng(1000 + int(k))
@@ -96,7 +96,7 @@ def effect_cases(n):
     its strength drawn uniformly in :data:`EFFECT_FRACTION` of the candidate's range (seeded
     by k), base parameters drawn from the calibration posterior (draw 100 + k), independent
     twin realisations (twin seeds 300 + k)."""
-    from analysis.twin_model import candidates
+    from analysis.catalog import candidates
     cands = candidates("dem")
     out = {}
     for k in range(int(n)):
@@ -117,7 +117,7 @@ def pair_cases(n):
     pairs), each strength drawn uniformly in :data:`PAIR_FRACTION` of its range (seeded by k),
     base parameters from the calibration posterior (draw 500 + k), twin seeds 500 + k."""
     from itertools import combinations
-    from analysis.twin_model import candidates
+    from analysis.catalog import candidates
     cands = candidates("dem")
     pairs = list(combinations(HIDDEN_EFFECTS, 2))
     out = {}
