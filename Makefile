@@ -12,22 +12,19 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        signatures hidden-demo bench-hidden loop open-world calibrate apparatus \
-        emulator-check
+        loop open-world calibrate apparatus emulator-check
 
 help:
-	@echo "make demo   - the twin on Table 3, then the loop (compare, diagnose, add, twin rerun) -> results/demo/README.md, results/demo/loop/"
+	@echo "make demo   - the twin on Table 3, then the loop (calibrate, diagnose and add, twin rerun) -> results/demo/README.md, results/demo/loop/"
 	@echo "make test   - the test suite (installs YADE and the venv when missing)"
 	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset -> OUT/report.md, diagnosis.csv, staircase.csv, loop.json"
 	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
-	@echo "make hidden-demo - hide an effect in twin data, find it blind, add it -> results/hidden_demo/report.md"
-	@echo "make bench-hidden - the hidden-effect suite -> results/hidden_suite/README.md, summary.json"
 	@echo "make open-world - blind open-world datasets and the loop on them -> results/open_world/datasets/, loop/README.md"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
 	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 + held-out runs; about 1.5 h on 2 cores) -> results/studies/emulator_check/"
 	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"
-	@echo "make geometry | facet-study | timestep-study | signatures - regenerate committed studies"
+	@echo "make geometry | facet-study | timestep-study - regenerate committed studies"
 
 setup: venv yade
 
@@ -98,16 +95,6 @@ surrogate: surrogate-runs
 	$(VPY) -m analysis.kinetics --twin-table results/twin_tables/all_runs.csv
 	$(VPY) -m analysis.predict --compare --twin-table results/twin_tables/validation_table.csv
 	$(VPY) -m analysis.report
-
-# the twin's effect signatures at the calibrated parameters (the diagnose model, issue 6)
-signatures: setup
-	$(VPY) -m analysis.twin_model --build --replicates 2
-
-hidden-demo: setup
-	$(VPY) -m analysis.hidden_demo
-
-bench-hidden: setup
-	$(VPY) -m analysis.hidden_suite --noise-seeds 5 --fresh --also-without-tracks
 
 # the loop on a user's dataset: model at its conditions, calibrate, diagnose, add, twin rerun
 DATASET ?= data/measurements/paper_table3

@@ -32,8 +32,9 @@ class Candidate:
     p0 : reference of the non-linear coordinates
     fixed : further parameters of the effect (defaults otherwise)
     levels : signature strengths as fractions of s_max (None: ``SIGNATURE_LEVELS``)
-    replicates : seeds per signature level and condition (None: the library's ``replicates``;
-        the larger of the two is used)
+    replicates : seeds per signature level and condition (None: the default)
+    (``levels`` and ``replicates`` were read by the signature library, retired 2026-12-03; the
+    effect declarations still state them)
     """
 
     name: str
@@ -105,8 +106,8 @@ def _declared_candidates(optional):
 
 # The diagnose catalog is declared by the effects themselves (each effect file's DECLARATION
 # "diagnose" entry, ordered by its "order"). The diagnose ranges: physically plausible, and wide
-# enough that the top moves v_mean by a few per cent (signature strengths; the pilot figures are
-# in results/signatures/README.md).
+# enough that the top moves v_mean by a few per cent (signature strengths; the pilot figures were
+# in results/signatures/README.md, removed with the signature library - git history keeps it).
 CANDIDATES = _declared_candidates(optional=False)
 #: effects whose footprint is below the twin's chaos (their entry's "decoy"): never to be named
 DECOYS = tuple(name for name, _, entry in diagnose_entries()

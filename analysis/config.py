@@ -18,8 +18,6 @@ FAKE_RUNS_DIR = RESULTS_DIR / "runs_fake"
 #: tracks of datasets' films, cached by the film's content hash (analysis.videos)
 TRACK_CACHE_DIR = RESULTS_DIR / "track_cache"
 DEMO_DIR = RESULTS_DIR / "demo"
-#: the hidden-effect demonstration (analysis.hidden_demo)
-HIDDEN_DEMO_DIR = RESULTS_DIR / "hidden_demo"
 #: the twin of the paper's mill (docs/apparatus.md): run-config fragments written by
 #: analysis.studies.apparatus_identification - the apparatus identified from the paper's EDEM
 #: column at its contact parameters, and the contact + apparatus calibrated on Table 3

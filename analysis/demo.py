@@ -19,8 +19,8 @@ Then it prints the contract lines (4-seed means)::
     calibrated twin vs measured: mean |v error| X %, max Y %
 
 (the calibrated line: the twin at results/apparatus/measured_apparatus.json's parameters,
-``--replicates`` seeds, when that profile exists; else the signature library's committed
-anchor runs) and runs the loop (:mod:`analysis.loop`) twice with no new twin run, from the
+``--replicates`` seeds; that profile is committed, and a missing one is an error) and runs the
+loop (:mod:`analysis.loop`) twice with no new twin run, from the
 committed run table (data/twin_runs): on Table 3 into results/demo/loop/ and on a blind dataset
 with a hidden effect at conditions the paper never ran into results/demo/blind_loop/
 (:data:`DEMO_LOOPS`); a loop whose runs are not all committed prints its plan instead.
@@ -121,23 +121,6 @@ def write_page(table, out_dir, meta, extra=()):
     (out_dir / "README.md").write_text(demo_page(table, meta, extra))
 
 
-def calibrated_lines(cond, lib_dir=None):
-    """(table, line) of the twin at the calibrated parameters against Table 3: the signature
-    library's anchor - the real twin at the calibration's posterior mean, 4 seeds per
-    condition, committed in results/signatures - its 4-seed means beside the measured speeds."""
-    from analysis.twin_model import SIGNATURE_DIR, load_library
-    summ, meta = load_library(lib_dir or SIGNATURE_DIR)
-    a = summ[summ["label"] == "none"].set_index("condition_id")
-    t = cond[["condition_id", "frequency_hz", "ball_diameter_mm", "v_mean_m_s"]].copy()
-    t["v_mean_twin_calibrated_m_s"] = a.loc[t["condition_id"], "v_mean_m_s"].to_numpy(float)
-    t["n_seeds"] = a.loc[t["condition_id"], "n"].to_numpy(int)
-    err = 100 * (t["v_mean_twin_calibrated_m_s"] / t["v_mean_m_s"] - 1)
-    t["v_error_pct"] = err
-    line = ("calibrated twin vs measured: mean |v error| %.2f %%, max %.2f %%"
-            % (err.abs().mean(), err.abs().max()))
-    return t, line, meta["theta_ref"]
-
-
 #: the loops the demo shows, from the committed run table (data/twin_runs): (sub-folder, dataset,
 #: what it is, extra options of python -m analysis.loop)
 DEMO_LOOPS = (
@@ -206,6 +189,10 @@ def main(argv=None):
         print("analysis.demo: error: a twin-of-the-mill profile is unusable: %s" % exc,
               file=sys.stderr)
         return 2
+    if cal_base is None:
+        print("analysis.demo: error: the calibrated twin's profile is missing: %s (it is "
+              "committed; `make apparatus` makes it)" % cal_src, file=sys.stderr)
+        return 2
     if paper_base is not None:
         off = {k: paper_base.get(k) for k, v in PAPER_CONTACT.items() if paper_base.get(k) != v}
         if off:
@@ -216,27 +203,19 @@ def main(argv=None):
     else:
         paper_words = "the default jar and stroke (%s)" % paper_src
     configs = demo_configs(cond, a.replicates, a.record_s, paper_base)
-    cal_configs = (demo_configs(cond, a.replicates, a.record_s, cal_base)
-                   if cal_base is not None else [])
+    cal_configs = demo_configs(cond, a.replicates, a.record_s, cal_base)
     res = run_sweep(configs + cal_configs, workers=a.workers)
     table = summarize_runs(cond, configs, res.table.iloc[:len(configs)])
     dem = 100 * (table["v_mean_twin_observed_m_s"] / table["v_mean_dem_paper_m_s"] - 1)
     table["v_diff_dem_paper_pct"] = dem
-    if cal_base is not None:
-        ct = summarize_runs(cond, cal_configs,
-                            res.table.iloc[len(configs):].reset_index(drop=True))
-        cal = ct[["condition_id", "frequency_hz", "ball_diameter_mm", "v_mean_measured_m_s",
-                  "v_mean_twin_observed_m_s", "v_mean_twin_sd_m_s", "v_diff_pct",
-                  "n_replicates", "motion_modes"]]
-        cal_line = ("calibrated twin vs measured: mean |v error| %.2f %%, max %.2f %%"
-                    % (ct["v_diff_pct"].abs().mean(), ct["v_diff_pct"].abs().max()))
-        cal_words = ("the twin at the contact and apparatus parameters calibrated on Table 3, "
-                     "%s, %d seeds per condition" % (cal_src, a.replicates))
-    else:
-        cal, cal_line, theta = calibrated_lines(cond)
-        cal_words = ("the real twin at the calibration's posterior mean %s, 4 seeds per "
-                     "condition, committed in results/signatures"
-                     % ", ".join("%s %.4g" % kv for kv in theta.items()))
+    ct = summarize_runs(cond, cal_configs, res.table.iloc[len(configs):].reset_index(drop=True))
+    cal = ct[["condition_id", "frequency_hz", "ball_diameter_mm", "v_mean_measured_m_s",
+              "v_mean_twin_observed_m_s", "v_mean_twin_sd_m_s", "v_diff_pct",
+              "n_replicates", "motion_modes"]]
+    cal_line = ("calibrated twin vs measured: mean |v error| %.2f %%, max %.2f %%"
+                % (ct["v_diff_pct"].abs().mean(), ct["v_diff_pct"].abs().max()))
+    cal_words = ("the twin at the contact and apparatus parameters calibrated on Table 3, "
+                 "%s, %d seeds per condition" % (cal_src, a.replicates))
     paper_meas = ("paper parameters vs measured: mean |v error| %.2f %%, max %.2f %%"
                   % (table["v_diff_pct"].abs().mean(), table["v_diff_pct"].abs().max()))
     paper_dem = ("paper parameters vs paper DEM: mean |v diff| %.2f %%, max %.2f %%"

@@ -73,20 +73,14 @@ for a footprint >= 3 x that noise, which costs power (toy model: rank-1 rate fel
 ~65 % at the same strengths) but never names a decoy. Use common random numbers or more
 replicates for the differences.
 
-CLI::
-
-    python -m analysis.diagnose --dataset DIR --model pkg.module:factory --out DIR [--add best]
-
-``factory(dataset)`` returns a :class:`ModelSpec` (predict, base_params, effects, model_se,
-crn_correlation, ...; a dict with those keys is still taken); writes diagnosis.csv, structure.csv, diagnosis.md,
-ranking.png and, with --add, staircase.csv, before_after.csv, staircase.png.
+The loop (:mod:`analysis.loop`, ``python -m analysis.loop``) runs these functions on the one
+model of the twin; this module has no command line of its own.
 
 References: Self, S.G., Liang, K.-Y. (1987) JASA 82, 605 (boundary LR tests); Rao score test;
 Schwarz (1978) BIC.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import dataclass, field
@@ -94,7 +88,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from analysis.atomic_dir import output_dir
 from scipy import optimize, stats
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
@@ -334,8 +327,9 @@ def with_run_sd(obs: pd.DataFrame, run_sd: pd.Series) -> pd.DataFrame:
 
 
 def model_se_from_predictions(predictions: pd.DataFrame) -> pd.Series:
-    """Standard error sd / sqrt(n_replicates) of a compare-style predictions table, as a Series
-    indexed by (condition_id, observable) for ``diagnose(model_se=...)``."""
+    """Standard error sd / sqrt(n_replicates) of a predictions table (condition_id, observable,
+    mean, sd, n_replicates), as a Series indexed by (condition_id, observable) for
+    ``diagnose(model_se=...)``."""
     p = predictions
     se = p["sd"].to_numpy(float) / np.sqrt(p["n_replicates"].to_numpy(float))
     return pd.Series(se, index=pd.MultiIndex.from_frame(p[["condition_id", "observable"]]))
@@ -1100,162 +1094,10 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     return ProfileInterval(name, x_hat, lo, hi, level, thr, open_lo, open_hi)
 
 
-@dataclass
-class ModelSpec:
-    """What a model factory (``--model package.module:function``) gives diagnose.
-
-    predict : callable(theta: dict, effects: dict | None) -> Series of the observables
-    base_params : list of :class:`BaseParameter` - calibrated before any effect
-    effects : list of :class:`Effect` - the candidates
-    model_se : Series or None - the model's own standard error per observable
-    crn_correlation : float - correlation of the model's noise between effect levels
-    fixed_effects : dict or None - effects held on at fixed strengths
-    noise_observables : set or None - observables whose sd the bootstrap treats as noise
-    effect_se : callable(effects) -> Series, or None - the effects' resolution error
-    observations : DataFrame or None - the observations to fit (default: from the dataset)
-    model : object - the model behind ``predict`` (e.g. analysis.twin_model.TwinModel)
-    patterns : object - the model's motion patterns, where it has them
-
-    A factory may still return the same keys as a dict (the earlier contract):
-    :meth:`from_any` takes both, and a ModelSpec answers ``spec["predict"]`` and
-    ``spec.get("effect_se")`` as the dict did.
-    """
-
-    predict: object
-    base_params: list
-    effects: list
-    model_se: object = None
-    crn_correlation: float = 0.0
-    fixed_effects: dict | None = None
-    noise_observables: set | None = None
-    effect_se: object = None
-    observations: object = None
-    model: object = None
-    patterns: object = None
-
-    @classmethod
-    def from_any(cls, obj) -> "ModelSpec":
-        """A ModelSpec from a ModelSpec or a dict with its field names (unknown keys are an
-        error naming them; predict, base_params and effects are required)."""
-        if isinstance(obj, cls):
-            return obj
-        if not isinstance(obj, dict):
-            raise TypeError("a model factory must return a ModelSpec or a dict, got %s"
-                            % type(obj).__name__)
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(obj) - known)
-        if unknown:
-            raise KeyError("model spec: unknown key(s) %s (known: %s)"
-                           % (", ".join(unknown), ", ".join(sorted(known))))
-        missing = [k for k in ("predict", "base_params", "effects") if k not in obj]
-        if missing:
-            raise KeyError("model spec: missing %s" % ", ".join(missing))
-        return cls(**obj)
-
-    def __getitem__(self, key):
-        if key not in self.__dataclass_fields__:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def __contains__(self, key):
-        return key in self.__dataclass_fields__ and getattr(self, key) is not None
-
-    def get(self, key, default=None):
-        v = getattr(self, key, None) if key in self.__dataclass_fields__ else None
-        return default if v is None else v
-
-
-def _load_model_factory(spec):
-    """'package.module:function' -> the function."""
-    import importlib
-    if ":" not in spec:
-        raise ValueError("--model must look like package.module:function, got %r" % spec)
-    mod, func = spec.split(":", 1)
-    try:
-        return getattr(importlib.import_module(mod), func)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError("--model %s: %s" % (spec, exc)) from None
-
-
-def write_diagnosis(diag: Diagnosis, out_dir, added: AddEffectResult | None = None,
-                    dataset_name: str = "", protected=(), synthetic: bool = False) -> "Path":
-    """Write diagnosis.csv, structure.csv, diagnosis.md, ranking.png [, staircase.csv,
-    before_after.csv, staircase.png] into ``out_dir`` atomically (temp folder, rename); an
-    ``out_dir`` that is not ours to replace, or touches a ``protected`` input, is refused
-    (:func:`analysis.atomic_dir.check_out_dir`). ``synthetic`` (the dataset's own flag,
-    ``Dataset.synthetic``) marks the page and the figures SYNTHETIC."""
-    from pathlib import Path
-
-    from analysis.plotting.diagnose_plots import write_diagnosis_figures
-    from analysis.report import diagnosis_page
-
-    out_dir = Path(out_dir)
-    with output_dir(out_dir, protected) as tmp:
-        diag.to_frame().to_csv(tmp / "diagnosis.csv", index=False)
-        diag.structure.to_csv(tmp / "structure.csv", index=False)
-        write_diagnosis_figures(diag, tmp, added.staircase if added is not None else None,
-                                dataset_name=dataset_name, synthetic=synthetic)
-        if added is not None:
-            added.staircase.to_csv(tmp / "staircase.csv", index=False)
-            added.to_frame().reset_index().to_csv(tmp / "before_after.csv", index=False)
-        (tmp / "diagnosis.md").write_text(diagnosis_page(diag, added, dataset_name, synthetic))
-    return out_dir
-
-
-def main(argv=None):
-    """``python -m analysis.diagnose --dataset DIR --model pkg.mod:factory --out DIR [--add X]``
-
-    ``factory(dataset)`` returns a :class:`ModelSpec` (or a dict with its keys): ``predict``,
-    ``base_params``, ``effects`` and optionally ``model_se``, ``crn_correlation``,
-    ``fixed_effects``, ``noise_observables``, ``effect_se`` and ``observations`` (the table the
-    model predicts, when it reads more of the dataset than its summary and yields, e.g. the
-    impact observables of jar tracks).
-    """
-    from analysis.measurements import DatasetError, load_dataset
-
-    ap = argparse.ArgumentParser(
-        description="Diagnose which candidate effect is missing from the twin, against a "
-        "measurement dataset (see the module docstring for the method).",
-        epilog="example: python -m analysis.diagnose --dataset data/measurements/paper_table3 "
-        "--model analysis.twin_model:factory --out results/diagnose_paper_table3 --add best")
-    ap.add_argument("--dataset", required=True, help="dataset folder data/measurements/<name>/")
-    ap.add_argument("--model", required=True,
-                    help="package.module:function; function(dataset) returns a ModelSpec (or a "
-                    "dict with its keys): predict, base_params, effects [, model_se, "
-                    "crn_correlation, fixed_effects, effect_se, observations]")
-    ap.add_argument("--out", required=True, help="output folder (replaced atomically)")
-    ap.add_argument("--add", help="effect to switch on afterwards ('best': the verdict's)")
-    ap.add_argument("--alpha", type=float, default=0.01,
-                    help="family-wise significance level [-] (default %(default)s)")
-    args = ap.parse_args(argv)
-    from analysis.atomic_dir import check_out_dir
-    try:
-        check_out_dir(args.out, [args.dataset])
-        ds = load_dataset(args.dataset)
-        problem = ModelSpec.from_any(_load_model_factory(args.model)(ds))
-        kw = {k: problem[k] for k in ("model_se", "crn_correlation", "fixed_effects",
-                                      "noise_observables", "effect_se") if k in problem}
-        obs = problem.get("observations", ds)
-        diag = diagnose(problem.predict, obs, problem.base_params, problem.effects,
-                        alpha=args.alpha, conditions=ds.conditions, **kw)
-        added = None
-        name = diag.best if args.add == "best" else args.add
-        if name:
-            kw.pop("crn_correlation", None)
-            kw.pop("noise_observables", None)
-            added = add_effect(problem.predict, obs, problem.base_params,
-                               problem.effects, name, **kw)
-        write_diagnosis(diag, args.out, added, ds.name, protected=[args.dataset],
-                        synthetic=ds.synthetic)
-    except (DatasetError, ValueError, KeyError, TypeError) as exc:
-        print("error: %s" % exc, file=sys.stderr)
-        return 2
-    print(diag.verdict)
-    if added is not None:
-        print(added.summary())
-    print("wrote %s" % args.out)
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    # the plug-in command line (--model package.module:factory) is retired (2026-12-03): one
+    # loop on one model of the twin, python -m analysis.loop, runs the diagnosis
+    print("analysis.diagnose: error: no command line any more (its --model plug-in was "
+          "retired); run the loop: python -m analysis.loop --dataset DIR --out DIR",
+          file=sys.stderr)
+    sys.exit(2)

@@ -927,7 +927,7 @@ def write_loop(res: LoopResult, out_dir, dataset, protected=()) -> Path:
     states as stated and a column ``constrained``; diagnosis.csv the chi2 gain each candidate
     needed (``delta_chi2_needed``, the test as applied: Bonferroni x the bootstrap's scale, the
     F-test, BIC); loop.json is strict JSON (NaN and infinities as null)."""
-    from analysis.plotting.diagnose_plots import write_loop_figures
+    from analysis.plotting.loop_plots import write_loop_figures
     from analysis.report import loop_page
     from analysis.report.loop_words import (FAKE_WORDS, UNCONSTRAINED_RULE,
                                             annotate_parameters, is_fake_run, json_clean,

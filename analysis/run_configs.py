@@ -1,8 +1,8 @@
 """Run configs of the twin at a dataset's conditions: the one builder of "conditions x base
 parameters x seeds (x effects)".
 
-Every place that runs the twin at the conditions of a table (the open model, the calibration,
-the demo, the hidden datasets, the signature library, the studies) builds its configs here, so
+Every place that runs the twin at the conditions of a table (the loop's design, the calibration,
+the demo, the hidden datasets, the studies) builds its configs here, so
 that the same physics gives the same config and so the same run id (``twin_config.run_id``
 hashes the complete config: a float that differs in its last bit is another run).
 

@@ -112,8 +112,8 @@ def test_figures_are_drawn_only_in_plotting():
 
 
 def _unit(name, mods):
-    """A module's unit: the sub-package it lies in (analysis.twin_model.model ->
-    analysis.twin_model), else the module itself."""
+    """A module's unit: the sub-package it lies in (analysis.kinetics.model ->
+    analysis.kinetics), else the module itself."""
     parts = name.split(".")
     if len(parts) > 2 and ".".join(parts[:2]) in mods:
         return ".".join(parts[:2])

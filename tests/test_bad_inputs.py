@@ -39,10 +39,10 @@ from analysis.synthvideo import Camera, bounce_track, render_video
 FPS = 2134.0
 
 #: repository folders the tools could write (or read as input); folders that long-running jobs
-#: (twin sweeps, the open-world and hidden suites) fill while the tests run are left out: the
-#: twin's runs folder is redirected into the tmp folder instead
+#: (twin sweeps, the open-world suite) fill while the tests run are left out: the twin's runs
+#: folder is redirected into the tmp folder instead
 WATCHED = [config.RESULTS_DIR, config.GEOMETRY_DIR, config.DATA_DIR]
-BUSY = {"runs", "runs_fake", "open_world", "loop", "hidden_suite", "studies"}
+BUSY = {"runs", "runs_fake", "open_world", "loop", "studies"}
 
 
 # --------------------------------------------------------------------------------------------

@@ -26,3 +26,20 @@ def test_profile_reaches_every_demo_run_and_bad_profiles_are_refused(tmp_path):
     p.write_text(json.dumps({"config": {"jar_inner_length_m": 0.05}}))
     with pytest.raises(twin_config.ConfigError, match="needs jar_inner_diameter_m"):
         demo.load_profile(p)
+
+
+def test_a_missing_calibrated_profile_is_an_error_before_any_run(tmp_path, monkeypatch, capsys):
+    """The calibrated line is the twin at results/apparatus/measured_apparatus.json (committed):
+    without it the demo stops with one line and exit 2, before any twin run."""
+    from analysis import sweep
+    from analysis.config import MEASURED_APPARATUS_PROFILE
+    assert MEASURED_APPARATUS_PROFILE.is_file()
+
+    def never(*a, **k):
+        pytest.fail("a twin run started")
+    monkeypatch.setattr(sweep, "run_sweep", never)
+    monkeypatch.setattr(demo, "MEASURED_APPARATUS_PROFILE", tmp_path / "gone.json")
+    assert demo.main(["--out", str(tmp_path / "demo"), "--no-loop"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("analysis.demo: error: ")
+    assert "gone.json" in err[0] and not (tmp_path / "demo").exists()

@@ -11,8 +11,6 @@ the diagnosis must carry in its uncertainties.
 """
 import numpy as np
 import pandas as pd
-
-from analysis.atomic_dir import MARKER
 import pytest
 
 from analysis.diagnose import (AddEffectResult, BaseParameter, Diagnosis, Effect, add_effect,
@@ -261,44 +259,19 @@ def test_bad_inputs():
         add_effect(predict, obs, BASE, EFFECTS, "gremlins", model_se=se)
 
 
-CLI_HIDDEN, CLI_SEED = {"ball_spin": 1.0}, 11
-
-
-def cli_problem(dataset):
-    """Model factory for the CLI test (python -m analysis.diagnose --model ...)."""
-    _, predict, se = make(CLI_HIDDEN, CLI_SEED)
-    return {"predict": predict, "base_params": BASE, "effects": EFFECTS, "model_se": se}
-
-
-def test_cli_diagnose_and_add(tmp_path, capsys):
-    from analysis import diagnose as diagmod
-    from analysis.measurements import Dataset, load_dataset, write_dataset
-    obs, _, _ = make(CLI_HIDDEN, CLI_SEED)
-    wide = obs.pivot(index="condition_id", columns="observable")
-    summ = pd.DataFrame({"condition_id": wide.index,
-                         "v_mean_m_s": wide[("value", "v_mean_m_s")].to_numpy(),
-                         "v_mean_sd_m_s": wide[("sd", "v_mean_m_s")].to_numpy(),
-                         "f_col_hz": wide[("value", "f_col_hz")].to_numpy(),
-                         "f_col_sd_hz": wide[("sd", "f_col_hz")].to_numpy()})
-    ds = Dataset(name="toy_hidden_spin", description="toy", source="test",
-                 velocity_frame="lab", conditions=CONDS, summary=summ)
-    ds_dir = write_dataset(ds, tmp_path / "ds")
-    assert load_dataset(ds_dir).missing_sd == {}
-    out = tmp_path / "out"
-    rc = diagmod.main(["--dataset", str(ds_dir), "--model", "tests.test_diagnose:cli_problem",
-                       "--out", str(out), "--add", "best"])
-    assert rc == 0
-    printed = capsys.readouterr().out
-    assert "missing effect: ball_spin" in printed
-    assert {p.name for p in out.iterdir()} == {
-        "diagnosis.csv", "structure.csv", "diagnosis.md", "ranking.png", "staircase.csv",
-        "before_after.csv", "staircase.png", MARKER}
-    stair = pd.read_csv(out / "staircase.csv")
-    assert stair["chi2_dof"].iat[2] <= 1.5 and stair["chi2_dof"].iat[1] >= 3 * stair["chi2_dof"].iat[2]
-    rc = diagmod.main(["--dataset", str(ds_dir), "--model", "tests.test_diagnose:nope",
-                       "--out", str(tmp_path / "out2")])
-    assert rc == 2 and not (tmp_path / "out2").exists()
-    assert capsys.readouterr().err.count("\n") == 1
+def test_the_retired_command_line_says_what_replaces_it():
+    """``python -m analysis.diagnose`` (its --model plug-in retired) runs nothing: one error
+    line naming the loop, exit 2 - never a silent success for an old script."""
+    import subprocess
+    import sys
+    from analysis.config import REPO_ROOT
+    p = subprocess.run([sys.executable, "-m", "analysis.diagnose", "--dataset", "x", "--model",
+                        "analysis.twin_model:factory", "--out", "y"], cwd=REPO_ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and p.stdout == ""
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("analysis.diagnose: error: ")
+    assert "python -m analysis.loop" in err[0]
 
 
 def test_noise_in_a_few_observables_does_not_drown_a_clean_signature():
@@ -395,30 +368,6 @@ def test_effect_se_enters_sigma_and_the_likelihood_does_not_chase_it():
     assert b.after.chi2 < plain.after.chi2
     # the stages without the effect keep the plain sigma
     assert b.before.chi2 == pytest.approx(plain.before.chi2)
-
-
-def test_model_spec_takes_the_dict_contract_and_names_bad_keys():
-    """--model factories may return a ModelSpec or the earlier dict; a dict with an unknown or
-    a missing key is one error naming it; the spec answers the dict's item access."""
-    from analysis.diagnose import BaseParameter, ModelSpec
-
-    def predict(theta, effects=None):
-        return None
-
-    base = [BaseParameter("restitution", 0.3, 0.1, 0.7)]
-    spec = ModelSpec.from_any({"predict": predict, "base_params": base, "effects": [],
-                               "model_se": None, "crn_correlation": 0.2})
-    assert spec.predict is predict and spec["base_params"] is base
-    assert spec["crn_correlation"] == 0.2 and "crn_correlation" in spec
-    assert "model_se" not in spec and spec.get("effect_se", "none") == "none"
-    assert ModelSpec.from_any(spec) is spec
-    with pytest.raises(KeyError, match="unknown key.*modelse"):
-        ModelSpec.from_any({"predict": predict, "base_params": base, "effects": [],
-                            "modelse": 1})
-    with pytest.raises(KeyError, match="missing effects"):
-        ModelSpec.from_any({"predict": predict, "base_params": base})
-    with pytest.raises(TypeError, match="ModelSpec or a dict"):
-        ModelSpec.from_any([predict])
 
 
 def test_profile_interval_covers_the_truth_as_often_as_it_claims():

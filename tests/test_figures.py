@@ -1,5 +1,5 @@
-"""Figures that must not mislead: readable heat-map labels, a linear and explained effect
-ranking, and a SYNTHETIC mark on everything made from synthetic data (and only there)."""
+"""Figures that must not mislead: a linear and explained effect ranking, and a SYNTHETIC mark
+on everything made from synthetic data (and only there)."""
 import json
 
 import matplotlib
@@ -12,16 +12,12 @@ import pandas as pd
 import pytest
 from matplotlib.text import Text
 
-from analysis import compare as cmpmod
 from analysis import report
-from analysis.compare import Comparison
-from analysis.diagnose import Diagnosis, write_diagnosis
+from analysis.diagnose import Diagnosis
 from analysis.measurements import Dataset, DatasetError, load_dataset, write_dataset
-from analysis.plotting import compare_plots as cp
+from analysis.plotting import loop_plots as lp
 from analysis.plotting import surrogate_plots as sp
 
-OBSERVABLES = ["v_mean_m_s", "f_col_hz", "yield_pct", "e_app", "v_in_m_s", "impact_phase_rad",
-               "jar_amplitude_m", "vy_rms_m_s"]
 FREQS = [22.5, 25.0, 27.5, 30.0]
 BALLS = [17.5, 20.6]
 
@@ -47,20 +43,6 @@ def _dataset(synthetic):
                    meta=meta)
 
 
-def _comparison(observables=OBSERVABLES, seed=0):
-    rng = np.random.default_rng(seed)
-    rows = []
-    for _, c in _conditions().iterrows():
-        for o in observables:
-            rows.append({"condition_id": c["condition_id"], "label": "x",
-                         "frequency_hz": c["frequency_hz"],
-                         "ball_diameter_mm": c["ball_diameter_mm"], "observable": o,
-                         "time_min": np.nan, "measured": 1.0, "residual": 0.0,
-                         "z": rng.normal(0.0, 2.0)})
-    t = pd.DataFrame(rows)
-    return Comparison(table=t, chi2=float((t["z"] ** 2).sum()), dof=len(t) - 2)
-
-
 def _diagnosis(bound=True, hatched_gain=12.0):
     t = pd.DataFrame({
         "effect": ["induction_period", "temperature_rise", "viscoelastic_restitution",
@@ -82,63 +64,11 @@ def _texts(fig):
     return [t.get_text() for t in fig.findobj(Text) if t.get_visible()]
 
 
-def _overlaps(labels, renderer):
-    boxes = [t.get_window_extent(renderer=renderer) for t in labels
-             if t.get_visible() and t.get_text()]
-    bad = []
-    for i in range(len(boxes)):
-        for j in range(i + 1, len(boxes)):
-            a, b = boxes[i], boxes[j]
-            if min(a.x1, b.x1) > max(a.x0, b.x0) and min(a.y1, b.y1) > max(a.y0, b.y0):
-                bad.append((labels[i].get_text(), labels[j].get_text()))
-    return bad
-
-
-# ------------------------------------------------------------------------------ heat map
-
-@pytest.mark.parametrize("layout", ["compare", "hidden_demo", "narrow", "two_columns"])
-def test_heatmap_tick_labels_do_not_overlap(layout):
-    obs = OBSERVABLES[:2] if layout == "two_columns" else OBSERVABLES
-    cmp = _comparison(obs)
-    if layout == "hidden_demo":            # heat map beside the staircase, as the demo draws it
-        w, h = cp.heatmap_figsize(cmp)
-        fig, axes = plt.subplots(1, 2, figsize=(w + 5.0, max(h, 4.0)),
-                                 gridspec_kw={"width_ratios": [w, 5.0]})
-        ax = axes[0]
-        cp.plot_chi2_staircase(pd.DataFrame({"stage": ["baseline", "calibrated"],
-                                             "chi2_dof": [9.0, 1.2]}), ax=axes[1])
-    elif layout == "narrow":               # the old fixed width: labels must still clear
-        fig, ax = plt.subplots(figsize=(5.5, 4.0))
-    else:
-        fig, ax = plt.subplots(figsize=cp.heatmap_figsize(cmp))
-    cp.plot_residual_heatmap(cmp, ax=ax, dataset=_dataset(False))
-    fig.tight_layout()
-    r = fig.canvas.get_renderer()
-    xt, yt = ax.get_xticklabels(), ax.get_yticklabels()
-    assert len(xt) == len(obs) and len(yt) == len(FREQS) * len(BALLS)
-    assert _overlaps(xt, r) == []
-    assert _overlaps(yt, r) == []
-    # labels stay inside the figure
-    fb = fig.bbox
-    for t in xt + yt:
-        b = t.get_window_extent(renderer=r)
-        assert b.x0 >= fb.x0 - 1 and b.x1 <= fb.x1 + 1 and b.y0 >= fb.y0 - 1
-    # short condition labels on the rows, short observable names on the columns
-    assert yt[0].get_text() == "17.5 mm / 22.5 Hz"
-    assert xt[0].get_text() == "v_mean"
-
-
-def test_heatmap_figure_width_grows_with_columns():
-    w2, _ = cp.heatmap_figsize(_comparison(OBSERVABLES[:2]))
-    w8, _ = cp.heatmap_figsize(_comparison(OBSERVABLES))
-    assert w8 > w2 and w8 >= 3.4 + 0.6 * 8 - 1e-9
-
-
 # ------------------------------------------------------------------------------ ranking
 
 def test_ranking_is_linear_titled_and_explained():
-    fig, ax = plt.subplots(figsize=cp.ranking_figsize(_diagnosis()))
-    cp.plot_effect_ranking(_diagnosis(), ax=ax, dataset_name="toy_data")
+    fig, ax = plt.subplots(figsize=lp.ranking_figsize(_diagnosis()))
+    lp.plot_effect_ranking(_diagnosis(), ax=ax, dataset_name="toy_data")
     fig.tight_layout()
     assert ax.get_xscale() == "linear" and ax.get_yscale() == "linear"
     assert "toy_data" in ax.get_title() and ax.get_title().strip()
@@ -167,19 +97,10 @@ def test_ranking_is_linear_titled_and_explained():
 def test_ranking_legend_lists_only_marks_in_use():
     d = _diagnosis(bound=False)
     d.table["identifiable"] = True
-    ax = cp.plot_effect_ranking(d)
+    ax = lp.plot_effect_ranking(d)
     words = " | ".join(t.get_text() for t in ax.get_legend().get_texts())
     assert "bound" not in words and "not identifiable" not in words
     assert "threshold" in words and ax.get_title().strip()
-
-
-def test_write_diagnosis_marks_synthetic(tmp_path):
-    d = _diagnosis()
-    write_diagnosis(d, tmp_path / "syn", dataset_name="hidden_toy", synthetic=True)
-    write_diagnosis(d, tmp_path / "real", dataset_name="lab_toy")
-    assert "SYNTHETIC" in (tmp_path / "syn" / "diagnosis.md").read_text()
-    assert "SYNTHETIC" not in (tmp_path / "real" / "diagnosis.md").read_text()
-    assert (tmp_path / "syn" / "ranking.png").stat().st_size > 1000
 
 
 # ------------------------------------------------------------------------------ SYNTHETIC
@@ -198,26 +119,18 @@ def test_dataset_flag_is_read_and_checked(tmp_path):
 @pytest.mark.parametrize("synthetic", [True, False])
 def test_synthetic_mark_on_figures(synthetic):
     ds = _dataset(synthetic)
-    cmp = _comparison()
     figs = []
-    fig, ax = plt.subplots(figsize=cp.heatmap_figsize(cmp))
-    cp.plot_residual_heatmap(cmp, ax=ax, dataset=ds)
-    figs.append(fig)
-    fig, ax = plt.subplots()                 # a caller's own title keeps the mark
-    cp.plot_residual_heatmap(cmp, ax=ax, dataset=ds, title="before: no effect")
-    figs.append(fig)
     fig, ax = plt.subplots()
-    cp.plot_effect_ranking(_diagnosis(), ax=ax, dataset=ds)
+    lp.plot_effect_ranking(_diagnosis(), ax=ax, dataset=ds)
     assert ds.name in ax.get_title()
     figs.append(fig)
-    fig, ax = plt.subplots()
-    cp.plot_chi2_staircase(pd.DataFrame({"stage": ["a", "b"], "chi2_dof": [3.0, 1.0]}), ax=ax,
-                           synthetic=ds.synthetic)
+    fig, ax = plt.subplots()                 # a caller's own title keeps the mark
+    lp.plot_effect_ranking(_diagnosis(), ax=ax, dataset=ds, title="step 1")
     figs.append(fig)
     fig, ax = plt.subplots()
-    cp.plot_yield_residuals(Comparison(table=pd.DataFrame(
-        {"condition_id": ["c"], "label": ["c"], "observable": ["yield_pct"], "time_min": [5.0],
-         "residual": [1.0], "sigma": [1.0]}), chi2=1.0, dof=1), ax=ax, synthetic=ds.synthetic)
+    lp.plot_loop_staircase(pd.DataFrame({"stage": ["baseline", "calibrated"],
+                                         "chi2_dof": [3.0, 1.0], "dof": [16, 12]}), ax=ax,
+                           synthetic=ds.synthetic)
     figs.append(fig)
     fig, ax = plt.subplots()
     sp.plot_yield_parity(pd.DataFrame({"yield_measured_pct": [10.0, 20.0],
@@ -227,23 +140,6 @@ def test_synthetic_mark_on_figures(synthetic):
     for fig in figs:
         texts = " ".join(_texts(fig))
         assert ("SYNTHETIC" in texts) == synthetic, texts[:200]
-
-
-@pytest.mark.parametrize("synthetic", [True, False])
-def test_compare_report_marks_synthetic(tmp_path, synthetic):
-    ds = _dataset(synthetic)
-    cmp = _comparison(["v_mean_m_s", "f_col_hz"])
-    cmp.table["measured_sd"] = 0.1
-    cmp.table["measured_sd_default"] = False
-    cmp.table["model_sd_default"] = False
-    cmp.table["model_mean"] = 1.0
-    cmp.table["model_se"] = 0.1
-    cmp.table["n_replicates"] = 3
-    cmp.table["rel_residual_pct"] = 0.0
-    page = cmpmod.markdown_page(cmp, ds, ["heatmap.png"])
-    assert ("SYNTHETIC" in page) == synthetic
-    out = cmpmod.write_report(cmp, ds, tmp_path / "out")
-    assert (out / "heatmap.png").stat().st_size > 1000
 
 
 @pytest.mark.parametrize("flag", [True, False])

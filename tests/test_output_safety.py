@@ -1,16 +1,13 @@
-"""No command deletes or overwrites anything it did not write: every refused --out of the loop,
-compare, diagnose and every other folder-writing stage gives exit 2, one line, and leaves the
-whole tree byte for byte as it was; the refusal comes before any work."""
+"""No command deletes or overwrites anything it did not write: every refused --out of the loop
+and every other folder-writing stage gives exit 2, one line, and leaves the whole tree byte for
+byte as it was; the refusal comes before any work."""
 import hashlib
 import json
 import shutil
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
-from analysis import compare as cmpmod
-from analysis import diagnose as diagmod
 from analysis import loop
 from analysis.atomic_dir import MARKER, OutputError, check_out_dir, publish_dir, staging_dir
 from analysis.config import PAPER_TABLE3_DIR, REPO_ROOT, RUNS_DIR
@@ -54,15 +51,11 @@ def _commands(out, ds):
     return {
         "loop": lambda: loop.main(["--dataset", str(ds), "--out", out, "--fake",
                                    "--workers", "1"]),
-        "compare": lambda: cmpmod.main(["--dataset", str(ds), "--predictions",
-                                        str(ds / "summary.csv"), "--out", out]),
-        "diagnose": lambda: diagmod.main(["--dataset", str(ds), "--model",
-                                          "analysis.twin_model:factory", "--out", out]),
     }
 
 
 @pytest.mark.parametrize("case", sorted(REFUSED))
-@pytest.mark.parametrize("command", ["loop", "compare", "diagnose"])
+@pytest.mark.parametrize("command", ["loop"])
 def test_refused_out_leaves_everything_untouched(world, case, command, capsys):
     w, ds = world
     out = REFUSED[case](w, ds)
@@ -98,10 +91,9 @@ def test_own_output_is_replaced_and_marked(tmp_path):
 # every other folder-writing stage: the same refusals, checked before any work
 # --------------------------------------------------------------------------------------------
 def _stages():
-    from analysis import calibrate, hidden_suite, kinetics, measurements, predict, report
-    from analysis import sensitivity, surrogate, twin_model, yield_data, yield_dataset
+    from analysis import calibrate, kinetics, predict, report
+    from analysis import sensitivity, surrogate, yield_data, yield_dataset
     from analysis.kinetics import cli as kinetics_cli
-    from analysis.studies import paper_diagnosis
     yd = yield_data
     # stage: (module, argv(out, ctx), [(module, name) of its work: must not run],
     #         ctx -> the input it reads)
@@ -125,12 +117,6 @@ def _stages():
         "yield_data": (yd, lambda o, c: ["generate", "--out", o],
                        [(yd, "synthetic_energy_inputs"), (yd, "generate_synthetic_yields")],
                        lambda c: c["yields"]),
-        "paper_diagnosis": (paper_diagnosis, lambda o, c: ["--out", o],
-                            [(measurements, "load_dataset"), (twin_model, "factory")],
-                            lambda c: PAPER_TABLE3_DIR),
-        "hidden_suite": (hidden_suite, lambda o, c: ["--out", o],
-                         [(hidden_suite, "run_suite"), (twin_model, "load_library")],
-                         lambda c: twin_model.SIGNATURE_DIR),
         "report": (report, lambda o, c: ["--results-dir", o],
                    [(report, "render_page"), (report, "write_atomic")], lambda c: c["ds"]),
     }
@@ -255,35 +241,6 @@ def test_report_replaces_only_its_own_pages(tmp_path, capsys):
     (tmp_path / "README.md").unlink()
     assert report.main(["--results-dir", str(tmp_path)]) == 0     # new pages: written
     assert report.main(["--results-dir", str(tmp_path)]) == 0     # its own pages: replaced
-
-
-def test_hidden_suite_failure_leaves_the_earlier_suite(tmp_path, monkeypatch, capsys):
-    """A suite that fails half-way leaves no staging folder and the earlier suite as it was; a
-    rerun starts from the earlier rows."""
-    from analysis import hidden_suite
-    out = tmp_path / "suite"
-    seen = {}
-
-    def first(out_dir, **kw):
-        (Path(out_dir) / "suite_rows.csv").write_text("dataset\nx\n")
-        return "rows"
-    monkeypatch.setattr(hidden_suite, "run_suite", first)
-    monkeypatch.setattr(hidden_suite, "write_report", lambda rows, d: {})
-    monkeypatch.setattr(hidden_suite, "per_effect", lambda rows: pd.DataFrame())
-    assert hidden_suite.main(["--out", str(out)]) == 0
-    assert (out / MARKER).exists()
-    before = tree_hash(out)
-
-    def fails(out_dir, **kw):
-        seen["rows"] = (Path(out_dir) / "suite_rows.csv").read_text()
-        (Path(out_dir) / "suite_rows.csv").write_text("dataset\nx\ny\n")
-        raise RuntimeError("twin run failed")
-    monkeypatch.setattr(hidden_suite, "run_suite", fails)
-    assert hidden_suite.main(["--out", str(out)]) == 2
-    assert seen["rows"] == "dataset\nx\n"                       # resumed from the earlier rows
-    assert tree_hash(out) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["suite"]
-    capsys.readouterr()
 
 
 def test_atomic_file_replaces_only_when_complete(tmp_path):

@@ -19,9 +19,7 @@ def test_priors_lie_inside_the_run_configs_bounds_and_carry_its_units():
 def test_readers_share_the_declaration():
     from analysis import calibrate, sensitivity
     from analysis.parameter_space import BASE_STEPS
-    from analysis.twin_model import BASE_BOUNDS
     assert calibrate.CALIBRATED is ps.CALIBRATED and calibrate.PRIORS is ps.PRIORS
-    assert BASE_BOUNDS is ps.CALIBRATED
     assert BASE_STEPS is ps.BASE_STEPS
     for k, b in sensitivity.CONTACT_BOUNDS.items():
         assert b == ps.CALIBRATED[k]

@@ -20,7 +20,7 @@ import pytest  # noqa: E402
 from analysis import loop  # noqa: E402
 from analysis.diagnose import Diagnosis, FitResult  # noqa: E402
 from analysis.fake_twin import toy_observables  # noqa: E402
-from analysis.plotting import compare_plots as cp  # noqa: E402
+from analysis.plotting import loop_plots as lp  # noqa: E402
 from analysis.report import loop_words as lw  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -170,8 +170,8 @@ def test_fake_loop_staircase_is_explained(fake_loop):
 
 @pytest.mark.parametrize("fake", [True, False])
 def test_staircase_is_linear_labelled_and_marks_what_the_verdict_quotes(fake):
-    fig, ax = plt.subplots(figsize=cp.loop_staircase_figsize(DEMO_STAIRCASE))
-    cp.plot_loop_staircase(DEMO_STAIRCASE, ax=ax, fake=fake)
+    fig, ax = plt.subplots(figsize=lp.loop_staircase_figsize(DEMO_STAIRCASE))
+    lp.plot_loop_staircase(DEMO_STAIRCASE, ax=ax, fake=fake)
     fig.tight_layout()
     assert ax.get_yscale() == "linear" and ax.get_xscale() == "linear"
     assert ax.get_xlim()[0] == 0.0
@@ -239,8 +239,8 @@ def _diagnosis(gains=(30.0, 23.0, 12.0, 2.0), chi2_after=(5.0, 40.0, 8.0, 30.0))
 @pytest.mark.parametrize("scale", [1.0, 2.6])
 def test_ranking_draws_the_threshold_applied(scale):
     d = _diagnosis()
-    fig, ax = plt.subplots(figsize=cp.ranking_figsize(d))
-    cp.plot_effect_ranking(d, ax=ax, dataset_name="toy", threshold_scale=scale, fake=True,
+    fig, ax = plt.subplots(figsize=lp.ranking_figsize(d))
+    lp.plot_effect_ranking(d, ax=ax, dataset_name="toy", threshold_scale=scale, fake=True,
                            step=1)
     line = [ln for ln in ax.lines if ln.get_gid() == "applied-threshold"]
     assert len(line) == 1
@@ -387,6 +387,6 @@ def test_fake_is_read_from_the_runs_themselves():
     assert lw.is_fake_run(SimpleNamespace(model_runs=real, rerun_runs=fake))
     assert lw.is_fake_run(SimpleNamespace(model_runs=fake, rerun_runs=None))
     fig, ax = plt.subplots()
-    cp.plot_loop_staircase(DEMO_STAIRCASE, ax=ax, fake=False)
+    lp.plot_loop_staircase(DEMO_STAIRCASE, ax=ax, fake=False)
     assert "FAKE" not in " ".join(t.get_text() for t in fig.findobj(matplotlib.text.Text))
     plt.close(fig)

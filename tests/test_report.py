@@ -117,23 +117,25 @@ def test_failed_write_leaves_the_old_page_and_no_temp_file(tmp_path, monkeypatch
 
 
 def test_foreign_pages_are_linked_not_written(tmp_path):
-    for name, page in (("hidden_demo", "README.md"), ("signatures", "report.md"),
-                       ("demo", "README.md")):
+    for name, page in (("apparatus", "report.md"), ("demo", "README.md")):
         (tmp_path / name).mkdir()
         (tmp_path / name / page).write_text("their page\n")
-    (tmp_path / "hidden_suite").mkdir()
     (tmp_path / "runs").mkdir()
     assert report.main(["--results-dir", str(tmp_path), "--strict"]) == 0
-    for name, page in (("hidden_demo", "README.md"), ("signatures", "report.md"),
-                       ("demo", "README.md")):
+    for name, page in (("apparatus", "report.md"), ("demo", "README.md")):
         assert (tmp_path / name / page).read_text() == "their page\n"
     index = (tmp_path / "README.md").read_text()
-    assert "[hidden_demo](hidden_demo/README.md)" in index
-    assert "[signatures](signatures/report.md)" in index
+    assert "[apparatus](apparatus/report.md)" in index
     assert "[demo](demo/README.md)" in index
-    assert "[hidden_suite](hidden_suite/)" in index and "no README.md or report.md" in index
-    assert not (tmp_path / "hidden_suite" / "README.md").exists()
     assert "runs" not in index.split("| folder")[1]
+    # a foreign folder without its page yet: listed, no page written for it
+    other = tmp_path / "other"
+    (other / "demo").mkdir(parents=True)
+    (other / "runs").mkdir()
+    assert report.main(["--results-dir", str(other), "--strict"]) == 0
+    index = (other / "README.md").read_text()
+    assert "[demo](demo/)" in index and "no README.md or report.md" in index
+    assert not (other / "demo" / "README.md").exists()
 
 
 def test_synthetic_source_is_flagged(tmp_path):

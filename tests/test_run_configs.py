@@ -8,7 +8,6 @@ import pytest
 from analysis import calibrate, demo, run_configs
 from analysis.config import twin_config
 from analysis.sweep import prepare_configs
-from analysis.twin_model import library_configs
 
 THETA = {"restitution": 0.35, "static_friction": 0.45, "rolling_friction": 0.25,
          "amplitude_m": 0.0127}
@@ -93,8 +92,8 @@ def test_grid_over_conditions_and_seeds():
 
 
 def test_call_sites_give_one_run_id_for_one_physics():
-    """The open model, the signature library, the demo and the calibration at the same physics
-    (a paper condition, the same parameters, seed and record time) ask for the same run."""
+    """The loop's run configs, the demo and the calibration at the same physics (a paper
+    condition, the same parameters, seed and record time) ask for the same run."""
     cond = pd.DataFrame([{"condition_id": "f30_d17.5", "frequency_hz": 30.0,
                           "ball_diameter_mm": 17.5},
                          {"condition_id": "f25_d20.6", "frequency_hz": 25.0,
@@ -102,18 +101,16 @@ def test_call_sites_give_one_run_id_for_one_physics():
     base = {"record_s": 0.3}
     om = [run_configs.condition_config(ph, THETA, 0, base)
           for ph in cond.to_dict("records")]
-    lib = [r[4] for r in library_configs(cond, THETA, replicates=1, base=base)
-           if r[0] == "none"]
     dm = demo.demo_configs(cond, 1, 0.3, THETA)
     cal = calibrate.condition_configs(THETA, cond.assign(
         ball_diameter_m=cond["ball_diameter_mm"] / 1000.0), seed=0, base=base)
-    assert ids(om) == ids(lib) == ids(dm) == ids(cal)
+    assert ids(om) == ids(dm) == ids(cal)
     assert len(set(ids(om))) == 2
-    # the open model with a stated stroke is the library at that stroke
+    # a condition with a stated stroke is the run at that stroke
     om_a = run_configs.condition_config(dict(cond.iloc[0], amplitude_mm=13.1), THETA, 0, base)
-    lib_a = library_configs(cond.iloc[:1], dict(THETA, amplitude_m=0.0131), replicates=1,
-                            base=base)[0][4]
-    assert twin_config.run_id(om_a) == twin_config.run_id(lib_a) != ids(om)[0]
+    at_a = run_configs.condition_configs(cond.iloc[:1], [0], dict(THETA, amplitude_m=0.0131),
+                                         base, stated_stroke=False)[0]
+    assert twin_config.run_id(om_a) == twin_config.run_id(at_a) != ids(om)[0]
 
 
 def test_hidden_dataset_runs_a_stated_stroke_as_the_loop_models_it(tmp_path):

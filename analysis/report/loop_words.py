@@ -6,7 +6,7 @@ twin, which parameters the data do not constrain and the strokes a dataset state
 
 Nothing here runs, fits or draws; :mod:`analysis.loop` (``write_loop``), the loop's page
 (:func:`analysis.report.loop_page`) and its figures
-(:func:`analysis.plotting.diagnose_plots.write_loop_figures`) read these.
+(:func:`analysis.plotting.loop_plots.write_loop_figures`) read these.
 """
 from __future__ import annotations
 

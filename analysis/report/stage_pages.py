@@ -10,23 +10,14 @@ function                                        written by (file)
 ==============================================  ================================================
 :func:`loop_page`                               ``analysis.loop`` (``report.md``)
 :func:`demo_page`                               ``analysis.demo`` (``README.md``)
-:func:`hidden_suite_page`,                      ``analysis.hidden_suite`` (``README.md``; the
-:func:`hidden_suite_comparison_section`         section is appended with ``--also-without-tracks``)
-:func:`hidden_demo_page`                        ``analysis.hidden_demo`` (``report.md``)
 :func:`open_suite_page`                         ``analysis.open_suite`` (``README.md``)
-:func:`comparison_page`                         ``analysis.compare`` (``comparison.md``)
-:func:`diagnosis_page`                          ``analysis.diagnose`` (``diagnosis.md``)
-:func:`signatures_page`                         ``analysis.twin_model`` (signature library
-                                                ``README.md``)
 :func:`apparatus_identification_page`           ``analysis.studies.apparatus_identification``
 :func:`apparatus_screen_page`                   ``analysis.studies.apparatus_screen``
 :func:`frame_equivalence_page`                  ``analysis.studies.frame_equivalence`` (``.md``)
-:func:`paper_diagnosis_page`                    ``analysis.studies.paper_diagnosis``
 ==============================================  ================================================
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -39,21 +30,8 @@ def _fmt_theta(t):
     return ", ".join("%s %.4g" % (k, v) for k, v in t.items())
 
 
-def _pct(x):
-    return "n/a" if x is None else "%.0f %%" % (100 * x)
-
-
-def _candidate_table_lines(table, cols):
-    """diagnose's candidate table: floats with 3 significant digits."""
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, r in table.iterrows():
-        lines.append("| " + " | ".join(("%.3g" % r[c]) if isinstance(r[c], float) else str(r[c])
-                                      for c in cols) + " |")
-    return lines
-
-
 # --------------------------------------------------------------------------------------------
-# the loop, compare, diagnose
+# the loop
 # --------------------------------------------------------------------------------------------
 def _cell(x, fmt="%.4g"):
     if isinstance(x, (bool, np.bool_)):
@@ -193,64 +171,6 @@ def _wave_counts(runs) -> str:
                      for k, v in n.items())
 
 
-def comparison_page(cmp, dataset, figures=()) -> str:
-    """``comparison.md`` of :func:`analysis.compare.write_report`: headline, plain-words lines,
-    the table, figures. ``cmp`` is an :class:`analysis.compare.Comparison`."""
-    t = cmp.table
-    synth = getattr(dataset, "synthetic", False)
-    out = ["# Twin vs %s: %s" % ("SYNTHETIC data" if synth else "measurements", dataset.name),
-           ""]
-    if synth:
-        out += ["> **SYNTHETIC DATA**: this dataset says it is synthetic (dataset.json "
-                "`\"synthetic\": true`): its 'measured' values were generated, not measured.", ""]
-    out += ["Source: %s (velocity frame: %s)." % (dataset.source, dataset.velocity_frame), ""]
-    out += [cmp.summary(), ""]
-    if t["measured_sd_default"].any():
-        out.append("Measured sd missing for %d row(s): default uncertainty used (see "
-                   "analysis/measurements.py)." % int(t["measured_sd_default"].sum()))
-    if t["model_sd_default"].any():
-        out.append("Twin replicate sd missing for %d row(s): default used." %
-                   int(t["model_sd_default"].sum()))
-    if t.get("one_realisation", pd.Series(False, index=t.index)).any():
-        out.append("Impact observables (analysis.flights) come from one measured track each: "
-                   "their sigma also holds one twin run's sd; diff % is left out for them.")
-    out += ["", "| condition | observable | %s | model (mean +- se, n) | diff %% | z |"
-            % ("SYNTHETIC 'measured'" if synth else "measured"),
-            "|---|---|---|---|---|---|"]
-    for _, r in t.iterrows():
-        obs = r["observable"] + ("" if not np.isfinite(r["time_min"]) else
-                                 " @ %g min" % r["time_min"])
-        rel = ("%+.1f" % r["rel_residual_pct"] if np.isfinite(r["rel_residual_pct"])
-               else "-")
-        out.append("| %s | %s | %.4g +- %.2g | %.4g +- %.2g (%d) | %s | %+.2f |"
-                   % (r["label"], obs, r["measured"], r["measured_sd"], r["model_mean"],
-                      r["model_se"], r["n_replicates"], rel, r["z"]))
-    out.append("")
-    for f in figures:
-        out += ["![%s](%s)" % (Path(f).stem, Path(f).name), ""]
-    return "\n".join(out)
-
-
-def diagnosis_page(diag, added=None, dataset_name: str = "", synthetic: bool = False) -> str:
-    """``diagnosis.md`` of :func:`analysis.diagnose.write_diagnosis`: the verdict, the ranked
-    candidates and, with ``added`` (an :class:`analysis.diagnose.AddEffectResult`), the effect
-    switched on. ``synthetic`` (the dataset's own flag) marks the page SYNTHETIC."""
-    cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength",
-            "strength_se", "footprint", "absorbed_frac", "identifiable", "significant"]
-    md = ["# Which effect is missing? %s%s" % (dataset_name,
-                                               " (SYNTHETIC data)" if synthetic else ""), ""]
-    if synthetic:
-        md += ["> **SYNTHETIC DATA**: the dataset says it is synthetic (dataset.json "
-               "`\"synthetic\": true`), not measured.", ""]
-    md += ["**Verdict:** %s" % diag.verdict, ""]
-    md += _candidate_table_lines(diag.table, cols)
-    md += ["", "![ranking](ranking.png)", ""]
-    if added is not None:
-        md += ["## Adding %s" % added.effect, "", added.summary(), "",
-               "![staircase](staircase.png)", ""]
-    return "\n".join(md)
-
-
 # --------------------------------------------------------------------------------------------
 # demonstrations and suites
 # --------------------------------------------------------------------------------------------
@@ -302,109 +222,6 @@ def demo_why_words(meta) -> str:
                else "is the twin's default"))
 
 
-def hidden_suite_page(summ, pe) -> str:
-    """``README.md`` of :func:`analysis.hidden_suite.write_report`: the suite's figures against
-    their goals (``summ``: :func:`analysis.hidden_suite.summarise`) and the per-case table
-    (``pe``: :func:`analysis.hidden_suite.per_effect`)."""
-    lines = ["# Hidden-effect suite", "",
-             "Datasets made by the real twin at the calibrated parameters with one catalog effect "
-             "hidden (or none), diagnosed blind with `analysis.twin_model` (see "
-             "`analysis/hidden_suite.py`). SYNTHETIC data throughout. Each dataset holds "
-             "v_mean and f_col (noise 1.5 % and 1 /s plus the twin's scatter), yields at "
-             "2.5-10 min (1 point) and a track of the ball and the jar per condition (2134 "
-             "frames/s, 5 um tracking noise), which the diagnosis reads into impact "
-             "observables (`analysis.flights`).", "",
-             "| figure | value | goal |", "|---|---|---|",
-             "| datasets (effect / none) | %d / %d | |" % (summ["n_effect_datasets"],
-                                                       summ["n_null_datasets"]),
-             "| effect datasets moving an observable >= 3 sigma (raw, before recalibration) "
-             "| %d | |" % summ["n_effect_datasets_ge_3sigma_raw"],
-             "| ... of those, true effect ranked first | %s | |" % _pct(summ["rank1_rate_raw"]),
-             "| effect datasets moving an observable >= 3 sigma after the best recalibration "
-             "without the effect (the identifiable part) | %d | |"
-             % summ["n_effect_datasets_ge_3sigma"],
-             "| ... of those, true effect ranked first | %s | >= 90 %% |" % _pct(summ["rank1_rate"]),
-             "| true effect reported (significant) | %s | |" % _pct(summ["true_reported_rate"]),
-             "| decoy (air drag) significant | %d | 0 |" % summ["decoy_significant"],
-             "| no-effect datasets: nothing missing | %d / %d | all |"
-             % (summ["null_nothing_missing"], summ["n_null_datasets"]),
-             "| added effects starting from chi2/dof >= 4.5 that end <= 1.5 | %d / %d | all |"
-             % (summ["added_reaching_1.5"], summ["n_added_from_ge_4.5"]),
-             "| median time per diagnosis + add | %.1f s | |"
-             % summ["median_seconds_per_diagnosis"], "",
-             "## Per case", "", pe.to_markdown(index=False, floatfmt=".3g")
-             if hasattr(pe, "to_markdown") and has_tabulate()
-             else "```\n" + pe.to_string(index=False, float_format=lambda x: "%.3g" % x)
-             + "\n```",
-             "", "![confusion](confusion.png)", ""]
-    return "\n".join(lines)
-
-
-def hidden_suite_comparison_section(summ, summ0, pe, pe0) -> str:
-    """The section :mod:`analysis.hidden_suite` appends to its page with
-    ``--also-without-tracks``: the same datasets' figures with (``summ``, ``pe``) and without
-    (``summ0``, ``pe0``) the jar tracks."""
-    keys = [("rank1_rate", "true effect ranked first (datasets >= 3 sigma after "
-             "recalibration)", _pct), ("n_effect_datasets_ge_3sigma", "... how many", str),
-            ("rank1_rate_raw", "true effect ranked first (datasets >= 3 sigma raw)", _pct),
-            ("decoy_significant", "decoy significant", str),
-            ("null_nothing_missing", "no-effect datasets: nothing missing", str),
-            ("added_reaching_1.5", "added from chi2/dof >= 4.5 ending <= 1.5", str),
-            ("n_added_from_ge_4.5", "... how many start >= 4.5", str)]
-    lines = ["", "## With and without the jar tracks", "",
-             "The same datasets diagnosed on v_mean, f_col and the yields alone "
-             "(`without_tracks/`), against the default that also reads the impact observables "
-             "of the jar tracks (`analysis.flights`):", "",
-             "| figure | with jar tracks | without |", "|---|---|---|"]
-    for k, label, f in keys:
-        lines.append("| %s | %s | %s |" % (label, f(summ[k]), f(summ0[k])))
-    m = pe[["case", "rank1_rate"]].merge(pe0[["case", "rank1_rate"]], on="case",
-                                         suffixes=("_with", "_without"))
-    lines += ["", "Rank-1 rate per case (all 5 noise seeds): " + "; ".join(
-        "%s %.0f %% / %.0f %%" % (r.case, 100 * r.rank1_rate_with, 100 * r.rank1_rate_without)
-        for r in m.itertuples()) + ".", ""]
-    return "\n".join(lines)
-
-
-def hidden_demo_page(cmp0, diag, added, stair, reveal, times) -> str:
-    """``report.md`` of :mod:`analysis.hidden_demo`: compare (``cmp0``, the calibrated twin
-    without effects), diagnose (``diag``), add and verify (``added``, the staircase ``stair``),
-    and the reveal of the hidden effect (``reveal``), with the stages' wall times."""
-    cols = ["rank", "effect", "kind", "delta_chi2", "p_bonferroni", "strength", "strength_se",
-            "absorbed_frac", "identifiable", "significant"]
-    lines = ["# Hidden-effect demo (SYNTHETIC data from the twin)", "",
-             "A secret effect was switched on in the twin; the dataset (v_mean, f_col, yields at "
-             "8 conditions, with noise; a track of the ball and the jar per condition, read by "
-             "analysis.flights into impact observables) was then compared, diagnosed and "
-             "corrected blind. Compare, diagnose and the chi2/dof staircase all read the "
-             "impact observables beside v_mean, f_col and the yields.", "",
-             "## 1. Compare: the calibrated twin without effects", "",
-             "chi2/dof = %.2f (dof %d). Where it fails:" % (cmp0.chi2 / max(cmp0.dof, 1),
-                                                           cmp0.dof), "", "```",
-             cmp0.summary(2.0), "```", "", "![overview](overview.png)", "",
-             "## 2. Diagnose", "", "**Verdict:** " + diag.verdict, ""]
-    lines += _candidate_table_lines(diag.table, cols)
-    lines += ["", "![ranking](diagnose/ranking.png)", "", "## 3. Add and verify", ""]
-    if added is not None:
-        lines += [added.summary(), ""]
-    lines += ["| stage | chi2 | dof | chi2/dof |", "|---|---|---|---|"]
-    for r in stair.itertuples():
-        lines.append("| %s | %.1f | %d | %.2f |" % (r.stage, r.chi2, r.dof, r.chi2_dof))
-    lines += ["", "The last row reruns the real twin at the refitted parameters with the added "
-              "effect (not the emulator).", "", "## 4. Reveal", "",
-              "| | |", "|---|---|",
-              "| hidden effect | %s %s |" % (reveal["hidden_effect"], reveal["hidden_params"]),
-              "| hidden strength (diagnose coordinate) | %.3g |" % reveal["hidden_strength"],
-              "| reported | %s (%s) |" % (reveal["reported"], reveal["status"]),
-              "| rank of the hidden effect | %s |" % reveal["true_rank"],
-              "| its fitted strength | %s |" % (
-                  "%.3g +- %.2g" % (reveal["fitted_strength"], reveal["fitted_strength_se"])
-                  if reveal["fitted_strength"] is not None else "-"),
-              "| found | %s |" % ("yes" if reveal["found"] else "NO"), "",
-              "Times: " + ", ".join("%s %.0f s" % (k, v) for k, v in times.items()), ""]
-    return "\n".join(lines)
-
-
 def open_suite_page(summ, goal_lines, datasets, figure=None, notes="") -> str:
     """``README.md`` of :mod:`analysis.open_suite`: the goal lines with their counts
     (``goal_lines``: :func:`analysis.open_suite.goal_lines`) and one row per dataset of the
@@ -426,79 +243,6 @@ def open_suite_page(summ, goal_lines, datasets, figure=None, notes="") -> str:
     if notes.strip():
         md += ["", notes.strip()]
     return "\n".join(md) + "\n"
-
-
-def signatures_page(summ, top, meta, late_v_in_frac) -> str:
-    """``README.md`` of the signature library (:mod:`analysis.twin_model`): what it is, the
-    signatures table, the impact observables, the levels in the 'late' pattern, the figure.
-    ``summ`` is the library summary (every level), ``top`` its rows at each label's largest
-    strength (:func:`analysis.twin_model.top_level`), ``meta`` the library.json contents and
-    ``late_v_in_frac`` the approach-speed fraction that defines the 'late' pattern."""
-    from analysis.flights import FLIGHT_OBSERVABLES
-    from analysis.catalog import Candidate
-    full = summ
-    summ = top
-    cands = {c["name"]: c for c in meta["candidates"]}
-    a = summ[summ["label"] == "none"]
-    rel = 100 * float(np.sqrt(np.nanmean((a["v_sd_m_s"] / a["v_mean_m_s"]) ** 2)))
-    piv = summ.pivot(index="condition_id", columns="label", values="dv_pct")
-    piv = piv.loc[list(a["condition_id"]), [c for c in piv.columns if c != "none"]]
-    lines = ["# Effect signatures of the twin", "",
-             "The twin at the calibrated parameters %s, every DEM catalog effect at the top of "
-             "its diagnose range, %d seeds per condition (the same seeds as the anchor without "
-             "effects). Regenerate with `make signatures` (`analysis/twin_model/`); used by "
-             "`analysis.twin_model.TwinModel` (diagnose's model), the hidden-effect suite and "
-             "`make hidden-demo`." % (meta["theta_ref"], meta["replicates"]), "",
-             "Replicate scatter of one run's v_mean at the anchor: %.2f %% (pooled over the "
-             "conditions); a difference of two %d-seed means has a standard error of %.2f %%."
-             % (rel, meta["replicates"], rel * math.sqrt(2.0 / meta["replicates"])), "",
-             "Change of v_mean [%] against the anchor:", "",
-             "| condition | " + " | ".join("%s (%s = %g)" % (
-                 c, cands[c]["param"], Candidate(**dict(cands[c], fixed=())).param_value(
-                     cands[c]["s_max"])) for c in piv.columns) + " |",
-             "|---|" + "---|" * len(piv.columns)]
-    for cid, r in piv.iterrows():
-        lines.append("| %s | " % cid + " | ".join("%+.2f" % v for v in r) + " |")
-    df = summ.pivot(index="condition_id", columns="label", values="df_col_hz")
-    lines += ["", "Change of f_col [1/s] (a 0.5 s record counts in steps of 2 /s):", "",
-              "| condition | " + " | ".join(piv.columns) + " |", "|---|" + "---|" * len(piv.columns)]
-    for cid in piv.index:
-        lines.append("| %s | " % cid + " | ".join("%+.1f" % df.loc[cid, c] for c in piv.columns)
-                     + " |")
-    if all(k in summ.columns and summ[k].notna().any() for k in FLIGHT_OBSERVABLES):
-        a = summ[summ["label"] == "none"].set_index("condition_id")
-        lines += ["", "Impact observables of the jar tracks (`analysis.flights`), mean over the "
-                  "conditions: the anchor, and each effect's change at the top of its range "
-                  "in units of one run's scatter (pooled over labels) - what a jar track "
-                  "adds to v_mean and f_col:", "",
-                  "| | " + " | ".join(FLIGHT_OBSERVABLES) + " |",
-                  "|---|" + "---|" * len(FLIGHT_OBSERVABLES),
-                  "| anchor | " + " | ".join("%.4g" % a[k].mean() for k in FLIGHT_OBSERVABLES)
-                  + " |"]
-        pooled = {k: float(np.sqrt(np.nanmean(summ[k + "_sd"] ** 2))) for k in
-                  FLIGHT_OBSERVABLES}
-        for lab in piv.columns:
-            d = summ[summ["label"] == lab].set_index("condition_id").loc[a.index]
-            cells = []
-            for k in FLIGHT_OBSERVABLES:
-                dz = (d[k] - a[k]) / pooled[k] if pooled[k] > 0 else (d[k] - a[k]) * np.nan
-                cells.append("%+.1f" % float(dz.mean()))
-            lines.append("| %s | " % lab + " | ".join(cells) + " |")
-    if "n_late_pattern" in full.columns:
-        late = full[full["n_late_pattern"] > 0]
-        if len(late):
-            lines += ["", "Levels where runs hit the wall in the 'late' pattern (approach speed "
-                      "< %.0f %% of the anchor's: a second steady flight; **mixed** = the seeds "
-                      "differ, so the level's mean averages two motions):" % (
-                          100 * late_v_in_frac), "",
-                      "| effect | strength | condition | late / runs | v_mean [m/s] |",
-                      "|---|---|---|---|---|"]
-            for r in late.itertuples():
-                lines.append("| %s | %.4g | %s | %d / %d%s | %.3f |" % (
-                    r.label, r.strength, r.condition_id, r.n_late_pattern, r.n,
-                    " (**mixed**)" if r.n_late_pattern < r.n else "", r.v_mean_m_s))
-    lines += ["", "![signatures](signatures.png)", ""]
-    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------------
@@ -619,33 +363,5 @@ def frame_equivalence_page(tab, wall_lab, wall_jar, n_seeds, compared) -> str:
                                       r.f_col_hz_z, r.v_in_m_s_z, r.e_app_z,
                                       r.impact_phase_rad_z, r.modes_lab, r.modes_jar))
     return "\n".join(lines) + "\n"
-
-
-def paper_diagnosis_page(diag, added, table, summary, name) -> str:
-    """``README.md`` of :mod:`analysis.studies.paper_diagnosis`: the verdict on Table 3, the
-    effect added (``added``, named ``name``), the Table-3-style ``table`` (index condition_id)
-    and the mean |v error| lines of ``summary``."""
-    lines = ["# Which effect is missing on the paper's Table 3?", "",
-             "The issue-6 loop on the real measurements (v_mean sd 1.5 %, f_col sd 1 /s "
-             "assumed; Table 3 gives none). Model: `analysis.twin_model` (anchor at the "
-             "calibrated parameters, restitution and amplitude refitted). Regenerate: "
-             "`python -m analysis.studies.paper_diagnosis`.", "",
-             "**Verdict:** " + diag.verdict, "", "![ranking](diagnose/ranking.png)", ""]
-    if added is not None:
-        lines += ["**Added:** " + added.summary(), ""]
-    cols = [c for c in table.columns if "sd" not in c]
-    lines += ["| condition | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
-    for cid, r in table.iterrows():
-        lines.append("| %s | " % cid + " | ".join("%.3f" % r[c] if "err" not in c
-                                                  else "%+.2f" % r[c] for c in cols) + " |")
-    lines += ["", "mean |v error|: calibrated twin %.2f %% (max %.2f %%)"
-              % (summary["mean_abs_v_err_calibrated_pct"],
-                 summary["max_abs_v_err_calibrated_pct"])]
-    if "mean_abs_v_err_with_effect_pct" in summary:
-        lines[-1] += ("; twin rerun with %s: %.2f %% (max %.2f %%)"
-                      % (name, summary["mean_abs_v_err_with_effect_pct"],
-                         summary["max_abs_v_err_with_effect_pct"]))
-    lines.append("")
-    return "\n".join(lines)
 
 
