@@ -335,6 +335,18 @@ def model_se_from_predictions(predictions: pd.DataFrame) -> pd.Series:
     return pd.Series(se, index=pd.MultiIndex.from_frame(p[["condition_id", "observable"]]))
 
 
+def prefetcher(predict):
+    """The batch hook of a model's ``predict``, or None: ``predict.prefetch`` or, for a bound
+    method ``model.predict``, ``model.prefetch`` - called with every (theta, effects) a
+    finite-difference Jacobian is about to ask for, so that a model which evaluates many points
+    at once (an emulator) does so in one call."""
+    f = getattr(predict, "prefetch", None)
+    owner = getattr(predict, "__self__", None)
+    if f is None and owner is not None and getattr(owner, "predict", None) == predict:
+        f = getattr(owner, "prefetch", None)
+    return f
+
+
 class Problem:
     """Whitened least-squares problem around a black-box ``predict``."""
 
@@ -356,6 +368,7 @@ class Problem:
         if not np.all(np.isfinite(self.y)) or not np.all(np.isfinite(sd)) or np.any(sd < 0):
             raise ValueError("observations: value and sd must be finite, sd >= 0")
         self.predict = predict
+        self._prefetch = prefetcher(predict)
         self.base = list(base_params)
         names = [p.name for p in self.base]
         if len(set(names)) != len(names):
@@ -398,11 +411,28 @@ class Problem:
     def n(self):
         return len(self.y)
 
-    def mu(self, theta, effects):
-        """Model mean at base parameters ``theta`` and effect strengths ``effects`` (others null)."""
+    def _full_effects(self, effects):
         eff = {e.name: e.null for e in self.effects.values()}
         eff.update(self.fixed)
         eff.update(effects)
+        return eff
+
+    def prefetch(self, points):
+        """Hand the model's batch hook (:func:`prefetcher`) the (theta, effects) points not
+        yet computed; nothing without a hook."""
+        if self._prefetch is None:
+            return
+        todo = []
+        for theta, effects in points:
+            eff = self._full_effects(effects)
+            if (tuple(sorted(theta.items())), tuple(sorted(eff.items()))) not in self._cache:
+                todo.append((dict(theta), eff))
+        if len(todo) > 1:
+            self._prefetch(todo)
+
+    def mu(self, theta, effects):
+        """Model mean at base parameters ``theta`` and effect strengths ``effects`` (others null)."""
+        eff = self._full_effects(effects)
         key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
         if key not in self._cache:
             self.n_calls += 1
@@ -458,8 +488,12 @@ class Problem:
             eff.update(effects or {})
             key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
             if key not in self._esig:
-                se = pd.Series(self._se_fn(dict(theta), eff)).reindex(self.keys)
-                se = se.fillna(0.0).to_numpy(float)
+                out = self._se_fn(dict(theta), eff)
+                if isinstance(out, pd.Series) and out.index is self._index_seen:
+                    se = out.to_numpy(float)[self._indexer]     # predict's keys: mapped once
+                else:
+                    se = pd.Series(out).reindex(self.keys).to_numpy(float)
+                se = np.nan_to_num(se, nan=0.0)
                 if not np.all(np.isfinite(se)) or np.any(se < 0):
                     raise ValueError("model_se returned a negative or non-finite value")
                 self._esig[key] = np.sqrt(self.sd ** 2 + se ** 2)
@@ -520,12 +554,16 @@ class Problem:
             return np.concatenate([r, np.sqrt(np.maximum(pen, 0.0))])
 
         def fd_jac(f, u):
-            f0 = f(u)
-            J = np.empty((len(f0), len(u)))
+            steps = []
             for j in range(len(u)):
                 h = self.base_step_frac
                 uj = u.copy()
                 uj[j] = u[j] + h if u[j] + h <= 1.0 else u[j] - h
+                steps.append(uj)
+            self.prefetch([unpack(v) for v in [u] + steps])
+            f0 = f(u)
+            J = np.empty((len(f0), len(u)))
+            for j, uj in enumerate(steps):
                 J[:, j] = (f(uj) - f0) / (uj[j] - u[j])
             return J
 
@@ -1044,9 +1082,14 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     x_hat = float(np.clip(fit.params[name], p0.lower, p0.upper))
     start = {q.name: q.value for q in others}
 
+    batch = prefetcher(predict)
+
     def rise(x):
         def pred(theta, effects=None):
             return predict(dict(theta, **{name: float(x)}), effects)
+        if batch is not None:
+            pred.prefetch = lambda pairs: batch([(dict(t, **{name: float(x)}), e)
+                                                 for t, e in pairs])
 
         def se_fn(theta, effects=None):
             return model_se(dict(theta, **{name: float(x)}), effects)

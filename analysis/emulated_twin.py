@@ -252,33 +252,85 @@ class EmulatedTwin:
             hit = self._memo[key] = self.dem_parts(v[None, :])
         return hit
 
+    def prefetch(self, pairs):
+        """Emulate many points at once and remember them: ``pairs`` of (theta, effects) that
+        fits will ask for next (a finite-difference Jacobian's k + 1 nearby points) go through
+        each emulator in one call instead of k + 1."""
+        keys, vs = [], []
+        for theta, effects in pairs:
+            v = self.point_vector(theta, effects)
+            k = v.tobytes()
+            if k not in self._memo and k not in keys:
+                keys.append(k)
+                vs.append(v)
+        if not vs:
+            return
+        if len(self._memo) + len(vs) > 512:
+            self._memo.clear()
+        parts = self.dem_parts(np.vstack(vs))
+        for i, k in enumerate(keys):
+            self._memo[k] = {o: Prediction(p.mean[i:i + 1], p.latent_sd[i:i + 1],
+                                           p.chaos_sd[i:i + 1]) for o, p in parts.items()}
+
+    def _layout(self):
+        """Where each of :attr:`keys` comes from, as index arrays (built once): the row of
+        the stacked (observable x condition) table and the condition; the yields' condition
+        and time [s]."""
+        if getattr(self, "_lay", None) is None:
+            rows = {"v_mean_m_s": 0, "f_col_hz": 1}
+            rows.update({o: 2 + j for j, o in enumerate(self.flight_obs)})
+            direct, d_row, d_col, y_pos, y_col, y_t = [], [], [], [], [], []
+            pos = 0
+            for i, cid in enumerate(self.conditions["condition_id"]):    # as keys are built
+                obs = ["v_mean_m_s", "f_col_hz"]
+                times = list(self.yield_times_min.get(cid, []))
+                if cid in self.flight_conditions:
+                    obs_after = list(self.flight_obs)
+                else:
+                    obs_after = []
+                for o in obs:
+                    direct.append(pos)
+                    d_row.append(rows[o])
+                    d_col.append(i)
+                    pos += 1
+                for t in times:
+                    y_pos.append(pos)
+                    y_col.append(i)
+                    y_t.append(float(t) * 60.0)
+                    pos += 1
+                for o in obs_after:
+                    direct.append(pos)
+                    d_row.append(rows[o])
+                    d_col.append(i)
+                    pos += 1
+            assert pos == len(self.keys)
+            self._lay = tuple(np.array(x, dtype=float if k == 5 else int) for k, x in enumerate(
+                (direct, d_row, d_col, y_pos, y_col, y_t)))
+        return self._lay
+
     def _assemble(self, parts, theta, effects, which):
         """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
         yields (and their sds, propagated through E_tot) from the speed and rate."""
         v_col = SPEED_COLUMN[self.velocity_frame]
-        v_m = parts[v_col].mean[0]
-        f_m = parts["f_col_hz"].mean[0]
-        v_s = getattr(parts[v_col], which)[0]
-        f_s = getattr(parts["f_col_hz"], which)[0]
-        eff_obj, slope, intercept = self._kinetics(theta, effects)
-        out = []
-        for i, cid in enumerate(self.conditions["condition_id"]):
-            out += [v_m[i] if which == "mean" else v_s[i],
-                    f_m[i] if which == "mean" else f_s[i]]
-            times = self.yield_times_min.get(cid, [])
-            if times:
-                t_s = np.asarray(times, float) * 60.0
-                e_kin = 0.5 * self.mass_kg[i] * v_m[i] ** 2
-                if which == "mean":
-                    x = (slope * e_kin * f_m[i] * t_s / 1000.0 + intercept if eff_obj is None
-                         else eff_obj.yield_pct(e_kin, f_m[i], t_s, slope, intercept))
-                else:
-                    m = self.mass_kg[i]
-                    x = abs(slope) * t_s / 1000.0 * math.hypot(
-                        m * v_m[i] * f_m[i] * v_s[i], 0.5 * m * v_m[i] ** 2 * f_s[i])
-                out += list(np.asarray(x, float))
-            if cid in self.flight_conditions:
-                out += [getattr(parts[o], which)[0][i] for o in self.flight_obs]
+        direct, d_row, d_col, y_pos, y_col, y_t = self._layout()
+        table = np.vstack([getattr(parts[o], which)[0]
+                           for o in (v_col, "f_col_hz") + self.flight_obs])
+        out = np.empty(len(self.keys))
+        out[direct] = table[d_row, d_col]
+        if len(y_pos):
+            eff_obj, slope, intercept = self._kinetics(theta, effects)
+            v_m = parts[v_col].mean[0][y_col]
+            f_m = parts["f_col_hz"].mean[0][y_col]
+            m = self.mass_kg[y_col]
+            e_kin = 0.5 * m * v_m ** 2
+            if which == "mean":
+                out[y_pos] = (slope * e_kin * f_m * y_t / 1000.0 + intercept if eff_obj is None
+                              else eff_obj.yield_pct(e_kin, f_m, y_t, slope, intercept))
+            else:
+                v_s = getattr(parts[v_col], which)[0][y_col]
+                f_s = getattr(parts["f_col_hz"], which)[0][y_col]
+                out[y_pos] = abs(slope) * y_t / 1000.0 * np.hypot(m * v_m * f_m * v_s,
+                                                                  e_kin * f_s)
         return pd.Series(out, index=self.keys, dtype=float)
 
     @property

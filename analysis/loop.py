@@ -22,13 +22,16 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    its own uncertainty in the likelihood where each fit asks.
 4. **diagnose and add**, forward selection: rank every candidate effect; add the best one
    that beats the bootstrap-calibrated threshold; diagnose the rest again (``--max-effects``).
-5. **confirm**: the twin itself at the final point with the effects found (fresh seeds,
+5. **focus**: a wave of ``--focus-points`` design points where the selected fit's posterior
+   lies, with the effects found on (:func:`analysis.history_matching.posterior_cloud`); the
+   emulator refitted with them, the calibration and the selection redone on it.
+6. **confirm**: the twin itself at the final point with the effects found (fresh seeds,
    ``--rerun-replicates`` per condition); these runs join the training runs (they are design
    points too), the emulator is refitted and the final fit redone on it; a final point that
    moves by more than :data:`CONFIRM_TOL_SE` standard errors gets its own rerun
    (``--confirm-rounds``).
-6. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator.
-7. **write** one folder (atomically; only a folder this project wrote is ever replaced):
+7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator.
+8. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
    ========================  ==================================================================
    ``report.md``             the verdict in words, the staircase, the parameters, figures
@@ -103,6 +106,8 @@ CONFIRM_TOL_SE = 0.5
 #: seeds of the confirmation runs: round r uses CONFIRM_SEED0 + r * replicates onwards (fresh
 #: seeds, never the design's)
 CONFIRM_SEED0 = 100
+#: seed of the focus wave's runs (the design's seed added)
+FOCUS_SEED0 = 50
 
 
 @dataclass
@@ -116,6 +121,7 @@ class LoopSettings:
     replicates: int = 3              # seeds of the reference point (the chaos) [-]
     waves: int = 2                   # refinement waves [-]
     per_wave: int = 8                # design points per refinement wave [-]
+    focus_points: int = 6            # design points of the focus wave about the fit [-]
     rerun: bool = True               # the twin at the final point
     rerun_replicates: int = 3        # its seeds per condition [-]
     confirm_rounds: int = 2          # most reruns at moved final points [-]
@@ -133,7 +139,7 @@ class LoopSettings:
             if getattr(self, name) < 1:
                 raise ValueError("--%s must be >= 1, got %d"
                                  % (name.replace("_", "-"), getattr(self, name)))
-        for name in ("waves", "null_draws", "max_effects"):
+        for name in ("waves", "null_draws", "max_effects", "focus_points"):
             if getattr(self, name) < 0:
                 raise ValueError("--%s must be >= 0, got %d"
                                  % (name.replace("_", "-"), getattr(self, name)))
@@ -185,20 +191,27 @@ class WithAdded:
         self.added = dict(added)
         self.theta = None if theta is None else dict(theta)
 
-    def predict(self, theta, effects=None):
+    def _split(self, theta, effects):
+        """(base parameters, effects) of the model: the added strengths read from ``theta``."""
         th = {k: v for k, v in theta.items() if k not in self.added}
         eff = dict(effects or {})
         eff.update({k: theta.get(k, s) for k, s in self.added.items()})
-        return self.model.predict(th, eff)
+        return th, eff
+
+    def predict(self, theta, effects=None):
+        return self.model.predict(*self._split(theta, effects))
+
+    def prefetch(self, pairs):
+        """The model's batch evaluation of the points a fit asks for next, where it has one."""
+        f = getattr(self.model, "prefetch", None)
+        if f is not None:
+            f([self._split(t, e) for t, e in pairs])
 
     def model_se(self):
         if getattr(self.model, "state_dependent_se", False):
             # the model's own uncertainty where each fit asks (an emulator's): a callable
             def se_at(theta, effects=None):
-                th = {k: v for k, v in theta.items() if k not in self.added}
-                eff = dict(effects or {})
-                eff.update({k: theta.get(k, s) for k, s in self.added.items()})
-                return self.model.model_se(th, eff)
+                return self.model.model_se(*self._split(theta, effects))
             return se_at
         se = self.model.model_se(self.theta)
         if not self.added:
@@ -395,6 +408,7 @@ class LoopState:
     added: dict = field(default_factory=dict)       # effect -> strength, in the order added
     final: object = None             # the last fit
     reruns: list = field(default_factory=list)      # per round: point, runs, score, moved_se
+    focus: dict = field(default_factory=dict)       # the focus wave: its centre, runs, before
     intervals: dict = field(default_factory=dict)   # name -> ProfileInterval
     tracking: pd.DataFrame | None = None
     tracks: dict = field(default_factory=dict)
@@ -506,6 +520,43 @@ def select_stage(state: LoopState, log=print):
     state.stair += fs["stairs"]
 
 
+def focus_stage(state: LoopState, twin, log=print):
+    """The focus wave: ``focus_points`` design points where the selected fit's posterior lies
+    (:func:`analysis.history_matching.posterior_cloud`: its Gaussian approximation widened,
+    with the effects found on at their fitted strengths), run at every condition; the emulator
+    refitted with them, then the calibration and the forward selection redone on it - the
+    emulator is refined where the verdict is made before the verdict is taken."""
+    from analysis.history_matching import design_runs, effect_input, posterior_cloud
+    s, m = state.settings, state.model
+    if s.focus_points < 1:
+        return
+    cands = candidates()
+    dem = {k: v for k, v in state.added.items() if cands[k].kind == "dem"}
+    centre = dict(state.theta, **{effect_input(k): v for k, v in dem.items()})
+    centre = {k: v for k, v in centre.items() if k in m.space.bounds()}
+    cov = state.final.cov.rename(index=lambda k: effect_input(k) if k in dem else k,
+                                 columns=lambda k: effect_input(k) if k in dem else k)
+    pts = posterior_cloud(m.space, centre, cov, s.focus_points, seed=s.seed + FOCUS_SEED0)
+    pts.insert(0, "point", np.arange(len(pts)) + int(m.runs_["point"].max()) + 1)
+    runs = design_runs(m.space, pts, m.conditions, seeds=(s.seed + FOCUS_SEED0,),
+                       base_config=state.base_config)
+    runs["wave"] = "focus"
+    log("focus wave: %d points about the fit (%s), %d runs"
+        % (len(pts), _fmt_theta(dict(state.theta, **state.added)), len(runs)))
+    runs = twin(runs)
+    m.fit(pd.concat([m.runs_, runs], ignore_index=True))
+    before = {"point": dict(state.theta, **state.added), "effects": dict(state.added),
+              "chi2_dof": state.final.chi2_dof}
+    calibrate_stage(state)
+    select_stage(state, log)
+    state.focus = {"n_points": int(len(pts)), "n_runs": int(len(runs)), "before": before,
+                   "after": {"point": dict(state.theta, **state.added),
+                             "effects": dict(state.added), "chi2_dof": state.final.chi2_dof}}
+    if set(before["effects"]) != set(state.added):
+        log("after the focus wave the selection changed: %s -> %s"
+            % (", ".join(before["effects"]) or "nothing", ", ".join(state.added) or "nothing"))
+
+
 def twin_means(model, runs, theta, effects):
     """(mean, se) Series by the model's keys of the twin's own runs at one point: the run means
     of speed, f_col and the impact observables, the yields through the fitted powder line (or
@@ -599,6 +650,7 @@ def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | 
     build_stage(state, twin, log)
     calibrate_stage(state)
     select_stage(state, log)
+    focus_stage(state, twin, log)
     if s.rerun:
         confirm_stage(state, twin, log)
     if s.intervals:
@@ -640,7 +692,7 @@ def result_of(state: LoopState, *, new_runs, wall_s) -> LoopResult:
             "wall_s": wall_s, "flight_conditions": state.flight_ids,
             "alpha": state.settings.alpha,
             "tracking": None if state.tracking is None else state.tracking.to_dict("records"),
-            "bootstrap": fs["null"],
+            "bootstrap": fs["null"], "focus": state.focus,
             "reruns": [{k: v for k, v in r.items() if k not in ("runs", "score")}
                        | {"chi2": r["score"]["chi2"], "dof": r["score"]["dof"]}
                        for r in state.reruns]}
@@ -1058,6 +1110,7 @@ def settings_of(a, max_effects=None, extra=()) -> LoopSettings:
     return LoopSettings(alpha=a.alpha, max_effects=a.max_effects if max_effects is None
                         else max_effects, null_draws=a.null_draws, points=a.points,
                         replicates=a.replicates, waves=a.waves, per_wave=a.per_wave,
+                        focus_points=a.focus_points,
                         rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                         confirm_rounds=rounds, intervals=not a.no_intervals,
                         seed=a.seed, extra_effects=tuple(extra))
@@ -1103,18 +1156,21 @@ def plan_lines(ds, settings, base_config, twin) -> list:
     most = wave_runs(n_c, n_initial=settings.points, n_waves=settings.waves,
                      per_wave=settings.per_wave, replicates=settings.replicates)
     rerun = (settings.confirm_rounds * settings.rerun_replicates * n_c) if settings.rerun else 0
+    focus = settings.focus_points * n_c
     per = run_wall_s(base_config, twin.runs_dir)
-    new_most = p0.new + most["refinement"] + rerun
+    new_most = p0.new + most["refinement"] + focus + rerun
     return [
         "wave 0 (%d points + the reference point x %d seeds, %d conditions): %s"
         % (settings.points, settings.replicates, n_c, p0.words(twin.workers)),
         "refinement waves: up to %d runs (%d waves x %d points x %d conditions, where the data "
         "are plausible)" % (most["refinement"], settings.waves, settings.per_wave, n_c),
+        "focus wave: %d runs (%d points about the selected fit x %d conditions)"
+        % (focus, settings.focus_points, n_c),
         "twin reruns at the final point: up to %d runs (%d round(s) x %d seeds x %d conditions)"
         % (rerun, settings.confirm_rounds if settings.rerun else 0, settings.rerun_replicates,
            n_c),
         "total: up to %d runs, up to %d new, about %.0f min on %d worker(s) (%.0f s per run)"
-        % (p0.runs + most["refinement"] + rerun, new_most,
+        % (p0.runs + most["refinement"] + focus + rerun, new_most,
            math.ceil(new_most / max(twin.workers, 1)) * per / 60, twin.workers, per)]
 
 
@@ -1158,6 +1214,10 @@ def _main(argv=None):
                     "%(default)s)")
     ap.add_argument("--per-wave", type=int, default=d.per_wave,
                     help="design points per refinement wave [points] (default %(default)s)")
+    ap.add_argument("--focus-points", type=int, default=d.focus_points,
+                    help="design points of the focus wave about the selected fit, after "
+                    "which the calibration and the selection are redone (0: none) [points] "
+                    "(default %(default)s)")
     ap.add_argument("--seed", type=int, default=d.seed, help="design seed [-] (default "
                     "%(default)s)")
     ap.add_argument("--no-rerun", action="store_true",

@@ -21,8 +21,8 @@ WIDE_CONDITIONS = pd.DataFrame({"condition_id": ["w%d" % i for i in range(8)],
                                 "ball_diameter_mm": [15.0, 21.0, 16.0, 20.0, 17.0, 19.0, 18.0,
                                                      22.0]})
 #: a small loop: wave 0 of 12 points, one refinement wave of 4, one rerun of 2 seeds
-SMALL = ["--points", "12", "--waves", "1", "--per-wave", "4", "--rerun-replicates", "2",
-         "--confirm-rounds", "1", "--workers", "1"]
+SMALL = ["--points", "12", "--waves", "1", "--per-wave", "4", "--focus-points", "3",
+         "--rerun-replicates", "2", "--confirm-rounds", "1", "--workers", "1"]
 
 
 # --------------------------------------------------------------------------- physics, not names
@@ -164,8 +164,12 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
               "rerun_runs.csv", "staircase.png", "ranking.png"):
         assert (out / f).is_file(), f
     runs = pd.read_csv(out / "model_runs.csv")
-    assert set(runs["wave"].astype(str)) == {"0", "1", "confirm 1"}
-    assert len(runs) == (12 + 3 + 4) * 8 + 2 * 8
+    assert set(runs["wave"].astype(str)) == {"0", "1", "focus", "confirm 1"}
+    assert len(runs) == (12 + 3 + 4 + 3) * 8 + 2 * 8
+    # the focus wave: 3 points about the selected fit, every condition, one seed
+    fw = runs[runs["wave"].astype(str) == "focus"]
+    assert fw["point"].nunique() == 3 and len(fw) == 3 * 8
+    assert set(fw["seed"]) == {loop.FOCUS_SEED0}
     rr = pd.read_csv(out / "rerun_runs.csv")
     assert len(rr) == 16 and rr["run_id"].isin(runs["run_id"]).all()
     assert rr["restitution"].nunique() == 1                     # one point, fresh seeds
@@ -197,7 +201,8 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
     assert rc == 0 and not (tmp_path / "o").exists()
     text = capsys.readouterr().out
     assert "wave 0 (12 points + the reference point x 3 seeds, 8 conditions): 120 runs" in text
-    assert "up to 32 runs" in text and "total: up to 168 runs" in text
+    assert "up to 32 runs" in text and "focus wave: 24 runs" in text
+    assert "total: up to 192 runs" in text
     before = set(p.name for p in config.FAKE_RUNS_DIR.iterdir())
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o2"), "--fake",
                     "--budget-runs", "0"] + SMALL)
@@ -215,10 +220,11 @@ def test_options_of_the_anchored_model_are_still_accepted(fake_dataset, tmp_path
     assert "--max-reanchor has no effect" in err and "--diff-replicates has no effect" in err
     ns = type("A", (), dict(alpha=0.01, max_effects=3, null_draws=0, points=12, replicates=3,
                             waves=1, per_wave=4, no_rerun=False, rerun_replicates=2,
-                            confirm_rounds=2, max_refits=0, no_intervals=False, seed=0))
+                            confirm_rounds=2, max_refits=0, no_intervals=False, seed=0,
+                            focus_points=6))
     assert loop.settings_of(ns).confirm_rounds == 1          # --max-refits 0: one rerun
     for bad in (["--points", "1"], ["--per-wave", "0"], ["--confirm-rounds", "0"],
-                ["--alpha", "1.5"], ["--waves", "-1"]):
+                ["--alpha", "1.5"], ["--waves", "-1"], ["--focus-points", "-1"]):
         assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"),
                           "--fake", "--dry-run"] + bad) == 2
         assert bad[0] in capsys.readouterr().err
