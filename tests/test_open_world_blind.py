@@ -173,16 +173,33 @@ def test_suite_scores_and_goal_lines_count_what_they_claim():
 
 
 def test_score_only_scores_what_ran_and_draws_the_figure(tmp_path):
-    """--score-only on an output folder holding one of the 20 no-effect loops: that one row is
-    scored (no loop is started for the 19 others), the figure is drawn, the README links it and
-    ends with the folder's hand-written NOTES.md."""
-    import shutil
+    """--score-only on an output folder holding one of the 20 no-effect loops (its files as
+    the loop writes them: loop.json, diagnosis.csv, staircase.csv, parameters.csv): that one
+    row is scored (no loop is started for the 19 others), the figure is drawn, the README links
+    it and ends with the folder's hand-written NOTES.md."""
+    import json
 
     import pandas as pd
+    from analysis import atomic_dir
     from analysis.open_suite import FIGURE, NOTES, main
-    src = RESULTS_DIR / "open_world" / "loop_nulls_fix" / "null_p00"
     out = tmp_path / "loops"
-    shutil.copytree(src, out / "null_p00")
+    d = out / "null_p00"
+    d.mkdir(parents=True)
+    (d / atomic_dir.MARKER).write_text("")
+    (d / "loop.json").write_text(json.dumps({"status": "nothing_missing", "new_runs": 0,
+                                             "wall_s": 1.0}))
+    pd.DataFrame({"effect": ["rolling_resistance", "arc_motion"], "kind": "dem",
+                  "rank": [1, 2], "significant": False, "strength": [0.2, 1.0],
+                  "strength_se": [0.1, 2.0], "delta_chi2": [3.3, 0.4],
+                  "p_bonferroni": [0.3, 1.0], "identifiable": True, "step": 1}
+                 ).to_csv(d / "diagnosis.csv", index=False)
+    pd.DataFrame({"stage": ["baseline", "calibrated", "twin rerun",
+                            "refitted on the twin reruns"], "chi2": [395.0, 46.2, 64.9, 47.0],
+                  "dof": [68, 62, 62, 62]}).assign(chi2_dof=lambda t: t.chi2 / t.dof
+                                                    ).to_csv(d / "staircase.csv", index=False)
+    pd.DataFrame({"name": ["restitution"], "role": ["base"], "value": [0.33], "se": [0.003],
+                  "profile_lo": [0.32], "profile_hi": [0.34]}
+                 ).to_csv(d / "parameters.csv", index=False)
     (out / NOTES).write_text("How these loops were run: a note.\n")
     assert main(["--datasets", str(RESULTS_DIR / "open_world" / "nulls"), "--out", str(out),
                  "--score-only"]) == 0

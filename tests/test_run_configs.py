@@ -128,3 +128,18 @@ def test_hidden_dataset_runs_a_stated_stroke_as_the_loop_models_it(tmp_path):
     amps = sorted(json.loads(m.read_text())["config"]["amplitude_m"]
                   for m in (tmp_path / "runs").glob("*/meta.json"))
     assert amps == [THETA["amplitude_m"], 0.0131]
+
+
+def test_frame_equivalence_builds_its_lab_runs_at_the_reference_point():
+    """The jar/lab frame study runs Table 3's 8 conditions at the reference parameters in the
+    lab frame (its jar runs are the same configs with frame 'jar'), seeds 0 .. n-1."""
+    from analysis.parameter_space import reference_parameters
+    from analysis.studies.frame_equivalence import lab_configs
+    table, cfgs = lab_configs(2)
+    assert len(cfgs) == len(table) == 16
+    assert list(table["seed"][:2]) == [0, 1] and table["condition_id"].nunique() == 8
+    ref = reference_parameters()
+    for c in cfgs:
+        assert c["frame"] == "lab"
+        assert all(c[k] == ref[k] for k in ("restitution", "static_friction",
+                                            "rolling_friction", "amplitude_m"))

@@ -50,7 +50,6 @@ LOG_OBSERVABLES = ("vy_rms_m_s",)
 #: the conditions' inputs of the emulator
 CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
 DEFAULT_DATASET = RESULTS_DIR / "open_world" / "effects" / "eff_p01"
-DEFAULT_HELDOUT = RESULTS_DIR / "open_world" / "loop_effects_fix" / "eff_p01"
 DEFAULT_OUT = RESULTS_DIR / "studies" / "emulator_check"
 
 
@@ -223,8 +222,8 @@ def main(argv=None):
                                        "--cached-only to analyse what it has made)")
     p.add_argument("--dataset", default=str(DEFAULT_DATASET), help="dataset whose conditions "
                    "the design runs at (default %(default)s)")
-    p.add_argument("--heldout", default=str(DEFAULT_HELDOUT), help="a loop folder with "
-                   "model_runs.csv at the same conditions (default %(default)s)")
+    p.add_argument("--heldout", default=None, help="a loop folder with model_runs.csv at "
+                   "the same conditions, whose runs the emulator never saw (default: none)")
     add_design_options(p)
     p.add_argument("--cached-only", action="store_true", help="start no twin run: analyse "
                    "the study's runs already in the cache")
@@ -279,7 +278,7 @@ def main(argv=None):
         emulator_check_figure(per_run, tmp / "emulator_check.png", fake=a.fake)
         (tmp / "README.md").write_text(emulator_check_page(
             leave_out, heldout, n_runs=len(runs), n_planned=n_planned, n_points=a.points,
-            replicates=a.replicates, dataset=rel_path(a.dataset), heldout_dir=rel_path(a.heldout),
+            replicates=a.replicates, dataset=rel_path(a.dataset), heldout_dir=rel_path(a.heldout) if a.heldout else None,
             fake=a.fake, by_role=by_role if heldout is not None else None,
             by_effect=by_effect if heldout is not None else None))
     print(leave_out.to_string(index=False))

@@ -1,8 +1,9 @@
 """The jar-frame scene against the lab-frame scene at the paper's 8 conditions.
 
-The lab-frame runs are the Table-3 loop's anchor runs (results/loop/paper_table3/model_runs.csv:
-3 seeds per condition at the calibrated anchor); the same configs with ``frame: 'jar'`` are run
-(cached by run id) and compared per condition: v_mean, f_col, the impact observables of
+The lab-frame runs are Table 3's 8 conditions at the reference parameters (the Table-3
+calibration's posterior mean, :func:`analysis.parameter_space.reference_parameters`), ``--seeds``
+start positions each; the same configs with ``frame: 'jar'`` are run (both cached by run id)
+and compared per condition: v_mean, f_col, the impact observables of
 :mod:`analysis.flights` (v_in, e_app, impact phase) and the motion modes, each as the
 difference of the 3-seed means over its standard error (the two frames' replicate scatters
 combined). The wall time per run of each frame is read from the recordings' meta.json where
@@ -23,10 +24,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.config import RESULTS_DIR, RUNS_DIR
+from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR, RUNS_DIR
 from analysis.report import frame_equivalence_page
 
-LAB_RUNS = RESULTS_DIR / "loop" / "paper_table3"
 OUT = RESULTS_DIR / "studies" / "frame_equivalence"
 COMPARED = ("v_mean_m_s", "f_col_hz", "v_in_m_s", "e_app", "impact_phase_rad")
 #: the first columns of the table and the title of the page (how the study knows its own files)
@@ -34,7 +34,7 @@ TABLE_HEAD = ("condition_id", "n_lab", "n_jar", "modes_lab", "modes_jar")
 PAGE_TITLE = "# Jar frame against lab frame"
 
 
-def check_outputs(out, lab_dir=LAB_RUNS):
+def check_outputs(out, lab_dir=PAPER_TABLE3_DIR):
     """``out``.csv and ``out``.md under the file rule (raises
     :class:`analysis.atomic_dir.OutputError`); returns the two paths."""
     from analysis.atomic_dir import check_out_file, own_csv, own_text
@@ -46,25 +46,31 @@ def check_outputs(out, lab_dir=LAB_RUNS):
     return csv, md
 
 
-def lab_configs(lab_dir=LAB_RUNS):
-    """(table of the lab anchor runs, their run configs) rebuilt from the loop's anchor and
-    conditions; each rebuilt config's run id is checked against the table's."""
-    from analysis.conditions import physics_table
-    from analysis.run_configs import condition_config
-    from analysis.sweep import prepare_configs
-    info = json.loads((lab_dir / "loop.json").read_text())
-    runs = pd.read_csv(lab_dir / "model_runs.csv")
-    runs = runs[runs["role"] == "anchor"].reset_index(drop=True)
-    phys = physics_table(pd.DataFrame(info["conditions"]).drop(columns=["label"]))
-    by_id = {r["condition_id"]: r for r in phys.to_dict("records")}
-    cfgs = [condition_config(by_id[c], info["anchor"], int(s))
-            for c, s in zip(runs["condition_id"], runs["seed"])]
-    _, ids = prepare_configs(cfgs)
-    bad = [i for i, (a, b) in enumerate(zip(ids, runs["run_id"])) if a != b]
-    if bad:
-        raise RuntimeError("rebuilt configs do not reproduce %d of the lab run ids (first: "
-                           "%s)" % (len(bad), runs["run_id"].iloc[bad[0]]))
-    return runs, cfgs
+def lab_configs(seeds=3, dataset_dir=PAPER_TABLE3_DIR):
+    """(table condition_id, seed; their lab-frame run configs): the dataset's conditions at the
+    reference parameters, seeds 0 .. ``seeds`` - 1, conditions outer."""
+    from analysis.measurements import load_dataset
+    from analysis.parameter_space import reference_parameters
+    from analysis.run_configs import condition_runs
+    runs = condition_runs(load_dataset(dataset_dir).conditions, seeds=range(int(seeds)),
+                          theta=reference_parameters(), base_config={"frame": "lab"})
+    table = pd.DataFrame({"condition_id": [r.condition_id for r in runs],
+                          "seed": [r.seed for r in runs]})
+    return table, [r.config for r in runs]
+
+
+def observed(table, sweep_table):
+    """``table`` with each run's run_id, v_mean, f_col, motion mode and impact observables."""
+    from analysis.twin_runs import run_flights
+    t = sweep_table.reset_index(drop=True)
+    out = table.copy()
+    out["run_id"] = t["run_id"].to_numpy()
+    for c in ("v_mean_m_s", "f_col_hz", "motion_mode"):
+        out[c] = t[c].to_numpy()
+    fl = run_flights(list(out["run_id"]))
+    for c in ("v_in_m_s", "e_app", "impact_phase_rad"):
+        out[c] = fl[c].to_numpy(float)
+    return out
 
 
 def compare(lab: pd.DataFrame, jar: pd.DataFrame) -> pd.DataFrame:
@@ -105,7 +111,6 @@ def wall_times(ids, runs_dir=RUNS_DIR):
 
 def main(argv=None):
     from analysis.sweep import run_sweep
-    from analysis.twin_runs import run_flights
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.studies.frame_equivalence "
                                  "--workers 2 --out results/studies/frame_equivalence")
@@ -114,7 +119,7 @@ def main(argv=None):
     ap.add_argument("--out", default=str(OUT), help="output prefix (.csv and .md are added)")
     ap.add_argument("--seeds", type=int, default=3,
                     help="start positions per condition and frame [seeds] (default "
-                    "%(default)s: the Table-3 anchor's lab runs; more are run in both frames)")
+                    "%(default)s)")
     a = ap.parse_args(argv)
     from analysis.atomic_dir import OutputError, atomic_file
     try:
@@ -122,41 +127,14 @@ def main(argv=None):
     except OutputError as exc:
         print("frame_equivalence: error: %s" % exc, file=sys.stderr)
         return 2
-    lab, cfgs = lab_configs()
-    if a.seeds > 3:
-        first = {}
-        for c, cid in zip(cfgs, lab["condition_id"]):
-            first.setdefault(cid, c)
-        extra = [(cid, s, dict(c, seed=s)) for cid, c in first.items()
-                 for s in range(int(lab["seed"].max()) + 1, a.seeds)]
-        more = run_sweep([c for _, _, c in extra], workers=a.workers)
-        if not more.ok:
-            print("frame_equivalence: error: %d lab-frame runs failed" % more.n_failed,
-                  file=sys.stderr)
-            return 1
-        mt = more.table.reset_index(drop=True)
-        add = pd.DataFrame({"condition_id": [e[0] for e in extra],
-                            "seed": [e[1] for e in extra], "run_id": mt["run_id"].to_numpy()})
-        for c in ("v_mean_m_s", "f_col_hz", "motion_mode"):
-            add[c] = mt[c].to_numpy()
-        fl = run_flights(list(add["run_id"]))
-        for c in ("v_in_m_s", "e_app", "impact_phase_rad"):
-            add[c] = fl[c].to_numpy(float)
-        lab = pd.concat([lab, add], ignore_index=True)
-        cfgs = cfgs + [c for _, _, c in extra]
-    res = run_sweep([dict(c, frame="jar") for c in cfgs], workers=a.workers)
+    lab, cfgs = lab_configs(a.seeds)
+    res = run_sweep(cfgs + [dict(c, frame="jar") for c in cfgs], workers=a.workers)
     if not res.ok:
-        print("frame_equivalence: error: %d jar-frame runs failed" % res.n_failed,
-              file=sys.stderr)
+        print("frame_equivalence: error: %d twin runs failed" % res.n_failed, file=sys.stderr)
         return 1
-    t = res.table.reset_index(drop=True)
-    jar = lab[["condition_id", "seed"]].copy()
-    jar["run_id"] = t["run_id"].to_numpy()
-    for c in ("v_mean_m_s", "f_col_hz", "motion_mode"):
-        jar[c] = t[c].to_numpy()
-    fl = run_flights(list(jar["run_id"]))
-    for c in ("v_in_m_s", "e_app", "impact_phase_rad"):
-        jar[c] = fl[c].to_numpy(float)
+    n = len(cfgs)
+    jar = observed(lab, res.table.iloc[n:])
+    lab = observed(lab, res.table.iloc[:n])
     tab = compare(lab, jar)
     wl, wj = wall_times(lab["run_id"]), wall_times(jar["run_id"])
     n_seeds = int(lab.groupby("condition_id").size().min())
