@@ -595,8 +595,9 @@ def test_the_design_builds_no_config_outside_the_bounds():
 
 def test_dry_run_counts_the_runs_the_loop_then_makes(fake_dataset, tmp_path, monkeypatch,
                                                      capsys):
-    """With no refinement wave and one rerun the dry run's total is exact: the number of runs
-    the loop then makes on the FAKE twin (the waves' count is a most)."""
+    """With no refinement wave and one rerun the dry run's total is exact (wave 0, the focus
+    wave, the rerun): the number of runs the loop then makes on the FAKE twin (the waves'
+    count is a most)."""
     runs = tmp_path / "fake_runs"
     monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", runs)
     opts = ["--dataset", str(fake_dataset), "--out", str(tmp_path / "out"), "--fake",
@@ -607,7 +608,7 @@ def test_dry_run_counts_the_runs_the_loop_then_makes(fake_dataset, tmp_path, mon
     assert len(total) == 1
     planned = int(total[0].split()[3])
     assert loop.main(opts) == 0, capsys.readouterr().err[-2000:]
-    assert len(list(runs.glob("*/meta.json"))) == planned == (12 + 3) * 3 + 3
+    assert len(list(runs.glob("*/meta.json"))) == planned == (12 + 3) * 3 + 6 * 3 + 3
 
 
 def test_a_failing_twin_run_is_one_line_and_not_the_bad_input_code(work, monkeypatch, capsys):

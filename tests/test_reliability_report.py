@@ -341,7 +341,7 @@ def test_results_index_lists_every_folder():
     folders = sorted(p.name for p in (ROOT / "results").iterdir()
                      if p.is_dir() and p.name not in IGNORED_FOLDERS
                      and not p.name.startswith("."))
-    for name in ("loop", "open_world", "apparatus", "bench"):
+    for name in ("demo", "open_world", "apparatus", "bench"):
         assert name in folders
     for name in folders:
         assert "| [%s](%s/" % (name, name) in index, name
