@@ -172,7 +172,7 @@ class LoopResult:
 def fit_observations(obs, model):
     """The observations the model is fitted to: a track is one realisation of a chaotic
     motion, so the sd of its impact observables is at least one twin run's scatter
-    (:func:`analysis.twin_model.with_run_sd`); and the priors of the model's base parameters
+    (:func:`analysis.diagnose.with_run_sd`); and the priors of the model's base parameters
     as pseudo-observations."""
     pri = getattr(model, "prior_observations", None)
     if pri is not None and len(pri()):
@@ -780,7 +780,7 @@ def run_settings(pairs, *, frame="lab", record_s=None):
 
 
 def optional_effects(names, base_config=None):
-    """The optional catalog entries ``names`` (twin_model.OPTIONAL_CANDIDATES), checked against
+    """The optional catalog entries ``names`` (catalog.OPTIONAL_CANDIDATES), checked against
     the runs' jar: each must be able to act on it at its largest strength.
 
     Raises
