@@ -344,7 +344,9 @@ def execute_run(runner, config, runs_dir, rid):
     """Run one config and return a status record; never raises for a failing run.
 
     A failure is also written to ``<runs_dir>/<rid>.failed.json`` (atomically) so it survives
-    a killed sweep. Module-level so process pools and Dask can ship it to workers.
+    a killed sweep - unless the error is ``transient`` (a run ended by a signal from outside,
+    :class:`analysis.twin.TwinRunKilled`): the next sweep runs it again. Module-level so
+    process pools and Dask can ship it to workers.
     """
     t0 = time.time()
     try:
@@ -361,8 +363,9 @@ def execute_run(runner, config, runs_dir, rid):
                "host": socket.gethostname(), "pid": os.getpid(),
                "time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(),
                "exec_s": time.time() - t0}
-        Path(runs_dir).mkdir(parents=True, exist_ok=True)
-        _atomic_write_json(failed_path(runs_dir, rid), rec)
+        if not getattr(exc, "transient", False):
+            Path(runs_dir).mkdir(parents=True, exist_ok=True)
+            _atomic_write_json(failed_path(runs_dir, rid), rec)
         return {k: rec[k] for k in ("run_id", "status", "error", "exec_s")} | {"run_dir": None}
 
 

@@ -37,6 +37,13 @@ class TwinRunError(RuntimeError):
     """YADE failed: bad config (exit 2), the run failed (exit 3), or YADE itself crashed."""
 
 
+class TwinRunKilled(TwinRunError):
+    """YADE was ended by a signal from outside (a kill, the machine's OOM killer): not the
+    run's own failure, so no sweep records it as failed for good (``transient``)."""
+
+    transient = True
+
+
 @dataclass
 class Recording:
     """One twin run read from disk.
@@ -181,7 +188,8 @@ def run_twin(config, runs_dir=None, force=False, timeout_s=None):
         lines = [ln for ln in (proc.stderr + proc.stdout).splitlines()
                  if "mill.py:" in ln or "Error" in ln or "error" in ln]
         msg = lines[-1] if lines else (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
-        raise TwinRunError("twin run %s failed (exit %d): %s" % (out.name, proc.returncode, msg))
+        err = TwinRunKilled if proc.returncode < 0 else TwinRunError
+        raise err("twin run %s failed (exit %d): %s" % (out.name, proc.returncode, msg))
     return out
 
 

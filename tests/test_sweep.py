@@ -233,3 +233,27 @@ def test_cached_wall_s_is_the_median_of_the_latest_runs_in_the_frame(tmp_path):
     assert CACHED_WALL_MIN == 5
     (tmp_path / "run00" / "meta.json").unlink()
     assert cached_wall_s("lab", tmp_path) is None          # 4 lab runs: too few
+
+
+def test_a_run_killed_from_outside_is_not_recorded_as_failed(tmp_path, monkeypatch):
+    """YADE ended by a signal (a kill, the OOM killer: exit -15, -9) is TwinRunKilled, a
+    transient error: the sweep reports it failed now but writes no .failed.json, so the next
+    sweep runs it again (a config that YADE refuses, exit 2, stays recorded)."""
+    from analysis import twin
+
+    def fake_yade(returncode):
+        def run(cmd, **kw):
+            return subprocess.CompletedProcess(cmd, returncode, "", "Terminated")
+        return run
+    cfg = {"frequency_hz": 25.0, "seed": 3}
+    for code, kind, recorded in ((-15, twin.TwinRunKilled, False), (-9, twin.TwinRunKilled,
+                                                                      False),
+                                 (2, twin.TwinRunError, True)):
+        runs = tmp_path / ("runs%d" % code)
+        monkeypatch.setattr(twin.subprocess, "run", fake_yade(code))
+        monkeypatch.setattr(twin, "yade_executable", lambda: "yade")
+        with pytest.raises(kind):
+            twin.run_twin(cfg, runs_dir=runs)
+        rec = sweep.execute_run(twin.run_twin, cfg, runs, "r1")
+        assert rec["status"] == "failed" and "exit %d" % code in rec["error"]
+        assert (runs / "r1.failed.json").exists() == recorded, code
