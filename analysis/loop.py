@@ -1245,7 +1245,8 @@ def _main(argv=None):
     ap.add_argument("--with-effect", action="append", default=[], metavar="NAME",
                     help="an optional catalog entry diagnosed beside the default ones "
                     "(repeatable): end_fillet (the jar's end edges rounded more; needs the "
-                    "default or a parametric jar)")
+                    "default or a parametric jar), stroke_drift (the stroke falls with the set "
+                    "frequency)")
     ap.add_argument("--v-rel-sd", type=float, default=None, metavar="F",
                     help="[-] measurement sd of v_mean assumed where the dataset states none, as a "
                     "fraction of v_mean (default 0.015; e.g. 0.01 for 1 %%)")

@@ -43,7 +43,10 @@ class Effect(_Declared):
       or 'cylinder' began (YADE interactions, normal approach speed [m/s]);
     - ``on_sample(twin, t)``: at every output frame;
     - ``on_interaction_start(twin, region, interaction, vn_in)``: the contact monitor first sees
-      this ball-facet interaction within an event (also facets reached later in the event).
+      this ball-facet interaction within an event (also facets reached later in the event);
+    - ``amplitude(cfg, a)``: the jar's half stroke [m] the scene drives, given the config and
+      the half stroke so far (``amplitude_m``, or what an earlier effect made of it); called
+      before the scene is built (stroke_drift).
     """
 
 
@@ -65,6 +68,10 @@ class Effect(_Declared):
         """A ball-facet interaction was first seen in an event of ``region`` (called for the
         interactions present at the event's start too, after on_event_start)."""
         pass
+
+    def amplitude(self, cfg, a):
+        """The half stroke [m] the scene drives (default: unchanged)."""
+        return a
 
 
 # ----------------------------------------------------------------------------------------------

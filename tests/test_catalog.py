@@ -24,6 +24,7 @@ EXPECTED_CANDIDATES = [
 ]
 EXPECTED_OPTIONAL = [
     ("end_fillet", "dem", "extra_fillet_m", 0.006, "m", "linear", 1.0, None, None),
+    ("stroke_drift", "dem", "fall_per_hz", 0.015, "1/Hz", "linear", 1.0, None, None),
 ]
 
 

@@ -269,6 +269,8 @@ class Twin(object):
         self.r = cfg["ball_diameter_m"] / 2.0
         self.f_target = cfg["frequency_hz"] if cfg["amplitude_m"] > 0 else 0.0
         self.A = cfg["amplitude_m"]
+        for e in self.effects:     # an effect may change the stroke the drive delivers
+            self.A = e.amplitude(cfg, self.A)
         self.dt = cfg["dt_s"]
         self.wall_start = time.time()
         self.rows = []
