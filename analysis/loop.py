@@ -655,10 +655,11 @@ def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | 
         confirm_stage(state, twin, log)
     if s.intervals:
         interval_stage(state)
-    return result_of(state, new_runs=twin.new_runs, wall_s=time.time() - t0)
+    return result_of(state, new_runs=twin.new_runs, wall_s=time.time() - t0,
+                     failed=getattr(twin, "failed", None))
 
 
-def result_of(state: LoopState, *, new_runs, wall_s) -> LoopResult:
+def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     """The loop's tables and words from its final state."""
     fs, final, cal = state.selection, state.final, state.calibrated
     model, dataset = state.model, state.dataset
@@ -693,6 +694,10 @@ def result_of(state: LoopState, *, new_runs, wall_s) -> LoopResult:
             "alpha": state.settings.alpha,
             "tracking": None if state.tracking is None else state.tracking.to_dict("records"),
             "bootstrap": fs["null"], "focus": state.focus,
+            "failed_runs": ([] if failed is None or not len(failed) else
+                            failed[[c for c in ("run_id", "error", "wave", "point",
+                                                "condition_id", "seed") if c in failed]]
+                            .to_dict("records")),
             "reruns": [{k: v for k, v in r.items() if k not in ("runs", "score")}
                        | {"chi2": r["score"]["chi2"], "dof": r["score"]["dof"]}
                        for r in state.reruns]}

@@ -186,7 +186,10 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert info["conditions"][0]["label"] == "15 mm ball at 20 Hz"
     assert info["model"] == "emulator" and info["new_runs"] == len(runs)
     assert info["fake_twin"] is True
-    assert (out / "report.md").read_text().startswith("# The loop on fk (SYNTHETIC)")
+    page = (out / "report.md").read_text()
+    assert page.startswith("# The loop on fk (SYNTHETIC)")
+    assert "## Focus wave" in page and "| before the focus wave |" in page
+    assert info["focus"]["n_runs"] == 3 * 8 and set(info["focus"]) >= {"before", "after"}
     # a second run is all cached and replaces only its own folder
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
                     "--null-draws", "0", "--no-intervals"] + SMALL)

@@ -153,6 +153,26 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                          b["bootstrap_scale"], b["applied_delta_chi2"],
                          "; %d of %d bootstrap datasets named an effect at the nominal level"
                          % (bs["n_false"], bs["n_draws"]) if bs else ""))
+    if i.get("failed_runs"):
+        md += ["", "%d twin run(s) failed and were left out of the model (loop.json "
+               "`failed_runs`), e.g. %s: %s" % (len(i["failed_runs"]),
+                                                i["failed_runs"][0]["run_id"],
+                                                str(i["failed_runs"][0]["error"])[-120:])]
+    fw = i.get("focus") or {}
+    if fw:
+        b, a = fw["before"], fw["after"]
+        md += ["", "## Focus wave", "",
+               "%d design points (%d twin runs) about the first pass's fit, with the effects it "
+               "had found on; the emulator refitted with them, then the calibration and the "
+               "selection done again (the staircase and the candidates above are that second "
+               "pass)." % (fw["n_points"], fw["n_runs"]), "",
+               "| pass | effects | chi2/dof (the model) | point |", "|---|---|---|---|",
+               "| before the focus wave | %s | %s | %s |"
+               % (", ".join(b["effects"]) or "none", _cell(b["chi2_dof"], "%.3g"),
+                  _fmt_theta(b["point"])),
+               "| after it | %s | %s | %s |"
+               % (", ".join(a["effects"]) or "none", _cell(a["chi2_dof"], "%.3g"),
+                  _fmt_theta(a["point"]))]
     md += ["", "![ranking](ranking.png)", "",
            "Model: the emulator fitted to %d twin runs at the dataset's conditions (%d new this "
            "time; waves: %s), reference point %s; wall time %.0f s."
