@@ -32,7 +32,7 @@ from analysis.config import DATA_DIR, RUNS_DIR
 RUN_TABLE = DATA_DIR / "twin_runs" / "runs.csv"
 #: the largest share of one call's runs that may fail (each left out of the model, named in
 #: the log) before the call stops with an error
-MAX_FAILED_SHARE = 0.1
+MAX_FAILED_SHARE = 0.25
 #: the run summaries a model of the twin reads (the impact observables are added to them)
 SUMMARY_COLUMNS = ("v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "motion_mode")
 #: wall time of one default twin run on one core [s] when the cache holds too few runs to

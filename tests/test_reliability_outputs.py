@@ -631,7 +631,7 @@ def test_a_design_point_the_twin_cannot_run_is_left_out(fake_dataset, tmp_path, 
                                                          capsys):
     """Fault injection: the twin fails at one wave-0 design point (the top restitution stratum
     of 12 Latin-hypercube points: every condition, as a ball that leaves the jar at a corner of
-    the design does) - 1 run in 15 of the wave, under the 10 % the loop tolerates. The loop
+    the design does) - 1 run in 15 of the wave, under the 25 % the loop tolerates. The loop
     leaves those runs out of the emulator, says so in one line, names them in loop.json and
     ends normally; the same loop again reads them as failed from the cache and does the same."""
     import analysis.fake_twin as fake
