@@ -197,7 +197,7 @@ class TwinRuns:
                 self.failed = pd.concat([self.failed, gone], ignore_index=True)
                 self.log("%d of %d twin run(s) failed and are left out of the model: %s"
                          % (len(errs), len(set(sub["run_id"])), "; ".join(
-                             "%s (%s)" % (r, e.split(": ")[-1][:90]) for r, e in
+                             "%s (%s)" % (r, e.split("run failed: ")[-1][:100]) for r, e in
                              list(errs.items())[:3]) + (" ..." if len(errs) > 3 else "")))
                 out = out[~out["run_id"].isin(errs)].reset_index(drop=True)
         return out
