@@ -129,7 +129,9 @@ class TwinRuns:
         return prepare_configs(list(runs["config"]))[1]
 
     def _split(self, ids):
-        cached = np.array([(self.runs_dir / i / "meta.json").is_file() for i in ids], bool)
+        from analysis.sweep import failed_path
+        cached = np.array([(self.runs_dir / i / "meta.json").is_file()
+                           or failed_path(self.runs_dir, i).is_file() for i in ids], bool)
         committed = np.array([i in self.table.index for i in ids], bool) & ~cached
         return cached, committed
 
@@ -166,22 +168,27 @@ class TwinRuns:
         for c in observable_columns():
             out[c] = np.nan
         out["motion_mode"] = out["motion_mode"].astype(object)
+        known_bad = {}
         if committed.any():
             t = self.table.reindex(out.loc[committed, "run_id"])
             for c in observable_columns():
                 if c in t.columns:
                     out.loc[committed, c] = t[c].to_numpy()
+            if "error" in t.columns:           # failed on the machine that made the table
+                err = t["error"].dropna()
+                known_bad = {str(r): str(e) for r, e in err.items()}
         run = ~committed
+        bad = pd.DataFrame({"run_id": list(known_bad), "error": list(known_bad.values())})
+        n_asked = len(set(out["run_id"]))
         if run.any():
             sub = out[run]
             res = run_sweep(list(sub["config"]), runner=self.runner, workers=self.workers,
                             runs_dir=self.runs_dir, **self.sweep_kw)
             self.new_runs += res.n_executed
-            bad = res.failed().drop_duplicates("run_id")
-            if res.interrupted is not None or len(bad) > self.max_failed_share * len(set(
-                    sub["run_id"])):
-                raise RuntimeError("%d twin run(s) failed:\n%s" % (
-                    res.n_failed, bad[["run_id", "error"]].to_string()))
+            bad = pd.concat([bad, res.failed()[["run_id", "error"]]], ignore_index=True
+                            ).drop_duplicates("run_id")
+            if res.interrupted is not None:
+                raise RuntimeError("the twin runs were interrupted")
             t = res.table.reset_index(drop=True)
             for c in SUMMARY_COLUMNS:
                 if c in t.columns:
@@ -189,17 +196,20 @@ class TwinRuns:
             fl = run_flights(list(sub["run_id"]), self.runs_dir)
             for c in fl.columns[1:]:
                 out.loc[run, c] = fl[c].to_numpy(float)
-            if len(bad):
-                errs = dict(zip(bad["run_id"], bad["error"].astype(str)))
-                gone = out[out["run_id"].isin(errs)].drop(columns=["config"], errors="ignore")
-                gone = gone[[c for c in gone.columns if c not in observable_columns()]]
-                gone.insert(1, "error", gone["run_id"].map(errs))
-                self.failed = pd.concat([self.failed, gone], ignore_index=True)
-                self.log("%d of %d twin run(s) failed and are left out of the model: %s"
-                         % (len(errs), len(set(sub["run_id"])), "; ".join(
-                             "%s (%s)" % (r, e.split("run failed: ")[-1][:100]) for r, e in
-                             list(errs.items())[:3]) + (" ..." if len(errs) > 3 else "")))
-                out = out[~out["run_id"].isin(errs)].reset_index(drop=True)
+        if len(bad):
+            if len(bad) > self.max_failed_share * n_asked:
+                raise RuntimeError("%d twin run(s) failed:\n%s" % (
+                    len(bad), bad[["run_id", "error"]].to_string()))
+            errs = dict(zip(bad["run_id"], bad["error"].astype(str)))
+            gone = out[out["run_id"].isin(errs)].drop(columns=["config"], errors="ignore")
+            gone = gone[[c for c in gone.columns if c not in observable_columns()]]
+            gone.insert(1, "error", gone["run_id"].map(errs))
+            self.failed = pd.concat([self.failed, gone], ignore_index=True)
+            self.log("%d of %d twin run(s) failed and are left out of the model: %s"
+                     % (len(errs), n_asked, "; ".join(
+                         "%s (%s)" % (r, e.split("run failed: ")[-1][:100]) for r, e in
+                         list(errs.items())[:3]) + (" ..." if len(errs) > 3 else "")))
+            out = out[~out["run_id"].isin(errs)].reset_index(drop=True)
         return out
 
 
@@ -224,11 +234,19 @@ def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
 
 def table_rows(run_ids, runs_dir=None) -> pd.DataFrame:
     """Committed-table rows of cached real runs: run_id, the config (JSON), the scene's frame,
-    YADE version and wall time, and the observables."""
+    YADE version and wall time, and the observables; a run that failed (only its
+    ``<run-id>.failed.json``) gives its config and its ``error``, no observables."""
+    from analysis.sweep import failed_path
     root = Path(runs_dir or RUNS_DIR)
     fl = run_flights(run_ids, root).set_index("run_id")
     rows = []
     for rid in run_ids:
+        if not (root / rid / "meta.json").is_file():
+            rec = json.loads(failed_path(root, rid).read_text())
+            rows.append({"run_id": rid, "config": json.dumps(rec.get("config", {}),
+                                                            sort_keys=True),
+                         "error": rec.get("error")})
+            continue
         meta = json.loads((root / rid / "meta.json").read_text())
         if str(meta.get("yade_version", "")).startswith("FAKE"):
             raise ValueError("run %s is a FAKE twin run: the table holds real runs only" % rid)
@@ -250,7 +268,10 @@ def add_to_table(run_ids, path=None, runs_dir=None) -> int:
     todo = sorted({str(r) for r in run_ids} - set(have.index))
     if not todo:
         return 0
-    missing = [r for r in todo if not (Path(runs_dir or RUNS_DIR) / r / "meta.json").is_file()]
+    from analysis.sweep import failed_path
+    root = Path(runs_dir or RUNS_DIR)
+    missing = [r for r in todo if not (root / r / "meta.json").is_file()
+               and not failed_path(root, r).is_file()]
     if missing:
         raise ValueError("%d run(s) are not in the cache, e.g. %s" % (len(missing), missing[0]))
     new = table_rows(todo, runs_dir)
@@ -268,12 +289,17 @@ def main(argv=None):
                                  "results/loop/my_mill/model_runs.csv")
     ap.add_argument("--add", nargs="+", required=True, metavar="CSV",
                     help="[files] tables with a run_id column (a loop's model_runs.csv, "
-                    "rerun_runs.csv)")
+                    "rerun_runs.csv; the runs its loop.json lists as failed are added too, "
+                    "with their error)")
     a = ap.parse_args(argv)
     ids = []
     try:
         for f in a.add:
             ids += list(pd.read_csv(f)["run_id"].astype(str))
+            info = Path(f).with_name("loop.json")
+            if info.is_file():
+                ids += [str(r["run_id"]) for r in
+                        json.loads(info.read_text()).get("failed_runs") or []]
         n = add_to_table(ids)
     except (OSError, KeyError, ValueError, pd.errors.ParserError) as exc:
         print("analysis.twin_runs: error: %s" % exc, file=sys.stderr)

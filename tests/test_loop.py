@@ -327,6 +327,22 @@ def test_committed_run_table_is_read_by_run_id(tmp_path):
     with pytest.raises(ValueError, match="FAKE"):
         twin_runs.add_to_table(ids[:1], tmp_path / "t.csv", tmp_path / "fk")
     assert not (tmp_path / "t.csv").exists()
+    # a run that failed on the machine that made the table (its error committed) is left out
+    # on another machine without running it; more failed runs than the share end the call
+    t = pd.read_csv(table)
+    t["error"] = [None] * (len(ids) - 1) + ["TwinRunError: the ball left the jar"]
+    t.loc[len(ids) - 1, "v_mean_m_s"] = np.nan
+    t.to_csv(table, index=False)
+    seen = []
+    tw = TwinRuns(runs_dir=tmp_path / "cache2", run_table=table, budget_runs=0,
+                  progress=False, max_failed_share=0.5, log=seen.append)
+    got = tw(runs)
+    assert len(got) == len(ids) - 1 and ids[-1] not in set(got["run_id"])
+    assert list(tw.failed["run_id"]) == [ids[-1]] and "left the jar" in seen[0]
+    tw = TwinRuns(runs_dir=tmp_path / "cache2", run_table=table, progress=False,
+                  max_failed_share=0.1)
+    with pytest.raises(RuntimeError, match="1 twin run"):
+        tw(runs)
 
 
 def test_speeds_in_mm_per_s_are_refused_with_a_unit_hint(tmp_path):
