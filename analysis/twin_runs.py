@@ -277,7 +277,7 @@ def add_to_table(run_ids, path=None, runs_dir=None) -> int:
     new = table_rows(todo, runs_dir)
     t = pd.concat([have.reset_index(), new], ignore_index=True) if len(have) else new
     with atomic_file(p) as tmp:
-        t.to_csv(tmp, index=False, float_format="%.8g")
+        t.to_csv(tmp, index=False, float_format="%.17g")   # exact: a refit must see the same data
     return len(new)
 
 
