@@ -22,9 +22,9 @@ EFF = RESULTS_DIR / "open_world" / "effects"
 
 
 @pytest.mark.skipif(not os.environ.get("MILL_TWIN_LONG_TESTS"),
-                    reason="the whole loop on the real twin takes about 25 min of analysis on 2 "
-                    "cores from committed runs (about 45 min of twin runs without them: the "
-                    "run table holds none at this summary version); set MILL_TWIN_LONG_TESTS=1")
+                    reason="the whole loop on the real twin: about 25 min of analysis on 2 "
+                    "cores and the twin runs the committed table does not hold (it holds the "
+                    "demo's blind loop, with --null-draws 10); set MILL_TWIN_LONG_TESTS=1")
 def test_blind_effect_at_new_conditions_is_found_from_committed_runs():
     """The real twin, blind: results/open_world/effects/eff_p01 - six conditions the paper never
     ran, base parameters drawn from the calibration posterior, an arc motion of the jar hidden
