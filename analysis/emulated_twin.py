@@ -110,13 +110,25 @@ class EmulatedTwin:
         self.mass_kg = STEEL_DENSITY_KG_M3 * math.pi / 6.0 * d_m ** 3
         self._X_cond = pd.DataFrame({"frequency_hz": self.conditions["frequency_hz"]
                                      .to_numpy(float), "ball_diameter_m": d_m})
-        keys = []
-        for cid in cids:
-            keys += [(cid, "v_mean_m_s"), (cid, "f_col_hz")]
-            keys += [(cid, "yield_pct@%gmin" % t) for t in self.yield_times_min.get(cid, [])]
-            if cid in self.flight_conditions:
-                keys += [(cid, k) for k in self.flight_obs]
+        # the keys of predict, and where each comes from (built together): the row of the
+        # stacked (speed, f_col, impact observables) x condition table and its condition, or,
+        # for a yield, its condition and time [s]
+        rows = {o: j for j, o in enumerate(("v_mean_m_s", "f_col_hz") + self.flight_obs)}
+        keys, direct, d_row, d_col, y_pos, y_col, y_t = [], [], [], [], [], [], []
+        for i, cid in enumerate(cids):
+            after = list(self.flight_obs) if cid in self.flight_conditions else []
+            for o in ["v_mean_m_s", "f_col_hz"]:
+                direct.append(len(keys)), d_row.append(rows[o]), d_col.append(i)
+                keys.append((cid, o))
+            for t in self.yield_times_min.get(cid, []):
+                y_pos.append(len(keys)), y_col.append(i), y_t.append(float(t) * 60.0)
+                keys.append((cid, "yield_pct@%gmin" % t))
+            for o in after:
+                direct.append(len(keys)), d_row.append(rows[o]), d_col.append(i)
+                keys.append((cid, o))
         self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
+        self._lay = (np.array(direct, int), np.array(d_row, int), np.array(d_col, int),
+                     np.array(y_pos, int), np.array(y_col, int), np.array(y_t, float))
 
     # ------------------------------------------------------------------------ fitting
     @property
@@ -272,47 +284,11 @@ class EmulatedTwin:
             self._memo[k] = {o: Prediction(p.mean[i:i + 1], p.latent_sd[i:i + 1],
                                            p.chaos_sd[i:i + 1]) for o, p in parts.items()}
 
-    def _layout(self):
-        """Where each of :attr:`keys` comes from, as index arrays (built once): the row of
-        the stacked (observable x condition) table and the condition; the yields' condition
-        and time [s]."""
-        if getattr(self, "_lay", None) is None:
-            rows = {"v_mean_m_s": 0, "f_col_hz": 1}
-            rows.update({o: 2 + j for j, o in enumerate(self.flight_obs)})
-            direct, d_row, d_col, y_pos, y_col, y_t = [], [], [], [], [], []
-            pos = 0
-            for i, cid in enumerate(self.conditions["condition_id"]):    # as keys are built
-                obs = ["v_mean_m_s", "f_col_hz"]
-                times = list(self.yield_times_min.get(cid, []))
-                if cid in self.flight_conditions:
-                    obs_after = list(self.flight_obs)
-                else:
-                    obs_after = []
-                for o in obs:
-                    direct.append(pos)
-                    d_row.append(rows[o])
-                    d_col.append(i)
-                    pos += 1
-                for t in times:
-                    y_pos.append(pos)
-                    y_col.append(i)
-                    y_t.append(float(t) * 60.0)
-                    pos += 1
-                for o in obs_after:
-                    direct.append(pos)
-                    d_row.append(rows[o])
-                    d_col.append(i)
-                    pos += 1
-            assert pos == len(self.keys)
-            self._lay = tuple(np.array(x, dtype=float if k == 5 else int) for k, x in enumerate(
-                (direct, d_row, d_col, y_pos, y_col, y_t)))
-        return self._lay
-
     def _assemble(self, parts, theta, effects, which):
         """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
         yields (and their sds, propagated through E_tot) from the speed and rate."""
         v_col = SPEED_COLUMN[self.velocity_frame]
-        direct, d_row, d_col, y_pos, y_col, y_t = self._layout()
+        direct, d_row, d_col, y_pos, y_col, y_t = self._lay
         table = np.vstack([getattr(parts[o], which)[0]
                            for o in (v_col, "f_col_hz") + self.flight_obs])
         out = np.empty(len(self.keys))
