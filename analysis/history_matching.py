@@ -295,7 +295,7 @@ def refocus_sample(space: DesignSpace, cand: pd.DataFrame, imp_max, n, seed, eff
 
 
 def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_points: int,
-                    seed: int, *, scale: float = FOCUS_SCALE) -> pd.DataFrame:
+                    seed: int, *, scale: float = FOCUS_SCALE, spread=()) -> pd.DataFrame:
     """``n_points`` design points where a fit's posterior lies (a focus wave).
 
     A Latin hypercube in whitened coordinates mapped through the fit's Gaussian approximation
@@ -306,6 +306,12 @@ def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_point
     bound) counts as :data:`FOCUS_MIN_SD` of its range; none is wider than half its range (a
     direction the data do not pin spreads over the box); points are clipped to the box.
 
+    The inputs named in ``spread`` (an effect's strength) are not drawn from the Gaussian but
+    stratified over their whole range (one column of the Latin hypercube each), so that the
+    wave measures the twin's response to them where the fit does not believe the answer lies
+    too: an emulator wrong about an effect's strength cannot be corrected by runs about its own
+    wrong answer. The other inputs keep their Gaussian (their marginal without the spread ones).
+
     Returns
     -------
     DataFrame (columns :meth:`DesignSpace.names`)
@@ -314,10 +320,11 @@ def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_point
     if n_points < 1:
         return pd.DataFrame(columns=space.names)
     b = space.bounds()
-    unknown = [k for k in centre if k not in b]
+    spread = list(spread)
+    unknown = [k for k in list(centre) + spread if k not in b]
     if unknown:
         raise ValueError("posterior_cloud: not inputs of the design space: %s" % unknown)
-    free = [k for k in cov.index if k in b]
+    free = [k for k in cov.index if k in b and k not in spread]
     lo = np.array([b[k][0] for k in free])
     hi = np.array([b[k][1] for k in free])
     mu = np.clip(np.array([float(centre.get(k, 0.0)) for k in free]), lo, hi)
@@ -335,12 +342,15 @@ def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_point
     L /= np.sqrt(np.sum(L ** 2, axis=1, keepdims=True))
     pts = pd.DataFrame({k: np.full(int(n_points), float(centre.get(k, 0.0)))
                         for k in space.names})
-    if free:
-        u = qmc.LatinHypercube(d=len(free), rng=np.random.default_rng(seed)).random(n_points)
-        z = norm.ppf(np.clip(u, 1e-6, 1 - 1e-6))
+    if free or spread:
+        u = qmc.LatinHypercube(d=len(free) + len(spread),
+                               rng=np.random.default_rng(seed)).random(n_points)
+        z = norm.ppf(np.clip(u[:, :len(free)], 1e-6, 1 - 1e-6))
         x = np.clip(mu + (z @ L.T) * sd, lo, hi)
         for i, k in enumerate(free):
             pts[k] = x[:, i]
+        for j, k in enumerate(spread):
+            pts[k] = b[k][0] + u[:, len(free) + j] * (b[k][1] - b[k][0])
     return pts[space.names]
 
 

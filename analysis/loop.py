@@ -522,10 +522,12 @@ def select_stage(state: LoopState, log=print):
 
 def focus_stage(state: LoopState, twin, log=print):
     """The focus wave: ``focus_points`` design points where the selected fit's posterior lies
-    (:func:`analysis.history_matching.posterior_cloud`: its Gaussian approximation widened,
-    with the effects found on at their fitted strengths), run at every condition; the emulator
-    refitted with them, then the calibration and the forward selection redone on it - the
-    emulator is refined where the verdict is made before the verdict is taken."""
+    (:func:`analysis.history_matching.posterior_cloud`: the base parameters from its Gaussian
+    approximation widened, the strengths of the effects found stratified over their whole
+    range - the twin's response to them measured at the fitted base point, not only where the
+    emulator believes the strength is), run at every condition; the emulator refitted with
+    them, then the calibration and the forward selection redone on it - the emulator is
+    refined where the verdict is made before the verdict is taken."""
     from analysis.history_matching import design_runs, effect_input, posterior_cloud
     s, m = state.settings, state.model
     if s.focus_points < 1:
@@ -536,7 +538,8 @@ def focus_stage(state: LoopState, twin, log=print):
     centre = {k: v for k, v in centre.items() if k in m.space.bounds()}
     cov = state.final.cov.rename(index=lambda k: effect_input(k) if k in dem else k,
                                  columns=lambda k: effect_input(k) if k in dem else k)
-    pts = posterior_cloud(m.space, centre, cov, s.focus_points, seed=s.seed + FOCUS_SEED0)
+    pts = posterior_cloud(m.space, centre, cov, s.focus_points, seed=s.seed + FOCUS_SEED0,
+                          spread=[effect_input(k) for k in dem])
     pts.insert(0, "point", np.arange(len(pts)) + int(m.runs_["point"].max()) + 1)
     runs = design_runs(m.space, pts, m.conditions, seeds=(s.seed + FOCUS_SEED0,),
                        base_config=state.base_config)

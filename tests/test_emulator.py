@@ -310,3 +310,27 @@ def test_posterior_cloud_follows_the_fit_and_stays_in_the_box():
     with pytest.raises(ValueError, match="not inputs"):
         posterior_cloud(space, {"youngs_modulus": 1.0}, cov, 4, seed=0)
     assert posterior_cloud(space, centre, cov, 0, seed=0).empty
+
+
+def test_posterior_cloud_spreads_an_effect_over_its_whole_range():
+    """A focus wave with an effect's strength spread: the strength stratified over its range
+    (one point in each of n equal bins, far from the fit's own Gaussian), the base parameters
+    still drawn from the fit's Gaussian, an unknown spread input refused."""
+    space = _space()
+    e0 = space.effect_names[0]
+    lo, hi = space.bounds()[e0]
+    centre = {"restitution": 0.40, "amplitude_m": 0.0130, "static_friction": 0.5,
+              "rolling_friction": 0.3, e0: 0.3 * hi}
+    names = ["restitution", e0]
+    sd = np.array([0.01, 0.01 * hi])
+    cov = pd.DataFrame(np.diag(sd ** 2), index=names, columns=names)
+    n = 8
+    pts = posterior_cloud(space, centre, cov, n, seed=4, spread=[e0])
+    bins = np.floor((pts[e0].to_numpy() - lo) / (hi - lo) * n).astype(int)
+    assert sorted(bins) == list(range(n))             # one point in every bin of the range
+    assert (pts[e0] > centre[e0] + 10 * sd[1]).sum() >= n // 2   # far beyond the fit's cloud
+    big = posterior_cloud(space, centre, cov, 400, seed=5, spread=[e0])
+    assert big["restitution"].std() == pytest.approx(2.0 * sd[0], rel=0.1)
+    assert big["restitution"].mean() == pytest.approx(0.40, abs=0.002)
+    with pytest.raises(ValueError, match="not inputs"):
+        posterior_cloud(space, centre, cov, 4, seed=0, spread=["youngs_modulus"])
