@@ -1,9 +1,12 @@
 """The loop on blind datasets whose truth is known: does it find what was hidden, and only that?
 
-Runs :func:`analysis.loop.run_loop` on every dataset folder in ``--datasets`` (each with its
-truth in ``<datasets>/truth/<name>.truth.json``, as :mod:`analysis.studies.open_world_data` and
-:mod:`analysis.hidden` write them), one output folder per dataset (a dataset whose loop.json
-exists is not rerun: the suite resumes), then scores the verdicts against the truth:
+Runs :func:`analysis.loop.run_loop` on every dataset folder in the ``--datasets`` folders
+(default: results/open_world/nulls, effects and pairs - 20 no-effect, 12 one-effect and 6
+two-effect datasets; each with its truth in ``<datasets>/truth/<name>.truth.json``, as
+:mod:`analysis.studies.open_world_data` and :mod:`analysis.hidden` write them), one output
+folder per dataset, the folders taken in turn (a dataset whose loop.json exists is not rerun:
+the suite resumes, and one stopped early has scored datasets of every kind), then scores the
+verdicts against the truth:
 
 * no effect hidden: "nothing missing";
 * effects hidden: each named (significant), no other significant beside them, and each fitted
@@ -22,8 +25,8 @@ atomically and the folder is marked.
 
 Example::
 
-    python -m analysis.open_suite --datasets results/open_world/datasets \\
-        --out results/open_world/loop
+    python -m analysis.open_suite --datasets results/open_world/effects \\
+        --out results/open_world/loop --only eff_p01
 """
 from __future__ import annotations
 
@@ -45,7 +48,12 @@ FIGURE = "open_suite.png"
 #: a hand-written note in ``--out`` (how the loops were run, what the misses mean), appended to
 #: the README each time the suite is scored again
 NOTES = "NOTES.md"
-DATASETS_DIR = RESULTS_DIR / "open_world" / "datasets"
+#: the blind suite: no-effect, one-effect and two-effect datasets (made by
+#: analysis.studies.open_world_data --nulls / --effects / --pairs)
+DATASETS_DIRS = tuple(RESULTS_DIR / "open_world" / k for k in ("nulls", "effects", "pairs"))
+#: the suite's loop settings beside the loop's defaults: the demo's blind loop's (its folder
+#: results/demo/blind_loop is the suite's eff_p01 loop, from the same runs)
+SUITE_PER_WAVE, SUITE_NULL_DRAWS = 6, 10
 SIGMA_CHECK_NAME = "sigma_check.csv"
 
 
@@ -185,6 +193,26 @@ def _dataset_names(datasets_dir):
                   if p.is_dir() and (p / "dataset.json").exists())
 
 
+def suite_datasets(datasets_dirs) -> list:
+    """[(folder, name)] of every dataset in ``datasets_dirs`` (one folder or several), taken
+    in turn from each folder (its first, the next folder's first, ...): a suite stopped early
+    has scored some datasets of every kind. ValueError when a name occurs in two folders (the
+    loop folders in --out are named by the dataset)."""
+    dirs = [Path(datasets_dirs)] if isinstance(datasets_dirs, (str, Path)) else \
+        [Path(d) for d in datasets_dirs]
+    lists = [[(d, n) for n in _dataset_names(d)] if d.is_dir() else [] for d in dirs]
+    out, seen = [], {}
+    for i in range(max((len(x) for x in lists), default=0)):
+        for x in lists:
+            if i < len(x):
+                d, n = x[i]
+                if n in seen:
+                    raise ValueError("dataset %s is in both %s and %s" % (n, seen[n], d))
+                seen[n] = d
+                out.append((d, n))
+    return out
+
+
 #: the files the suite writes (and reads: NOTES.md) in ``--out`` beside the loop folders
 SUITE_FILES = ("summary.csv", SIGMA_CHECK_NAME, FIGURE, "README.md", NOTES)
 
@@ -195,48 +223,51 @@ def _suite_folder(folder) -> bool:
                or (p.is_file() and p.name in SUITE_FILES) for p in Path(folder).iterdir())
 
 
-def check_outputs(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, score_only=False):
+def check_outputs(datasets_dirs=DATASETS_DIRS, out_dir=OUT_DIR, only=None, score_only=False):
     """The folder rule for ``--out`` and every loop folder the suite would write there, before
     any loop runs (raises :class:`analysis.atomic_dir.OutputError`)."""
     from analysis.atomic_dir import OutputError, check_out_dir
-    datasets_dir, out_dir = Path(datasets_dir), Path(out_dir)
-    if not datasets_dir.is_dir():
-        raise OutputError("--datasets %s is not a folder of datasets" % datasets_dir)
-    names = _dataset_names(datasets_dir)
+    dirs = [Path(datasets_dirs)] if isinstance(datasets_dirs, (str, Path)) else \
+        [Path(d) for d in datasets_dirs]
+    out_dir = Path(out_dir)
+    for d in dirs:
+        if not d.is_dir():
+            raise OutputError("--datasets %s is not a folder of datasets" % d)
+    pairs = suite_datasets(dirs)
     if only:
-        names = [n for n in names if n in only]
-    if not names:
+        pairs = [(d, n) for d, n in pairs if n in only]
+    if not pairs:
         raise ValueError("--datasets %s holds no dataset folder (dataset.json)%s"
-                         % (datasets_dir, " named by --only" if only else ""))
+                         % (" ".join(map(str, dirs)), " named by --only" if only else ""))
     try:
-        check_out_dir(out_dir, [datasets_dir])
+        check_out_dir(out_dir, dirs)
     except OutputError as exc:
         # an unmarked folder holding nothing but the suite's loop folders (each marked) and
         # its own files: the suite's earlier output from before the folder was marked
         if "did not write" not in str(exc) or not _suite_folder(out_dir):
             raise
-    if score_only and not any((out_dir / n / "loop.json").exists() for n in names):
+    if score_only and not any((out_dir / n / "loop.json").exists() for _, n in pairs):
         raise ValueError("--score-only: --out %s holds no loop of these datasets to score"
                          % out_dir)
-    for name in names:
+    for d, name in pairs:
         dest = out_dir / name
-        if (only and name not in only) or score_only or (dest / "loop.json").exists():
+        if score_only or (dest / "loop.json").exists():
             continue
-        check_out_dir(dest, [datasets_dir / name])
+        check_out_dir(dest, [d / name])
 
 
-def run_suite(datasets_dir=DATASETS_DIR, out_dir=OUT_DIR, only=None, log=print,
+def run_suite(datasets_dirs=DATASETS_DIRS, out_dir=OUT_DIR, only=None, log=print,
               score_only=False, settings=None, workers=2):
     """Run the loop (``settings``: :class:`analysis.loop.LoopSettings`, its frame 'auto') on
-    every dataset (resuming) and return the summary table; ``score_only``: score the datasets
-    whose loop already ran, run none."""
+    every dataset of ``datasets_dirs`` (:func:`suite_datasets`'s order; resuming) and return
+    the summary table; ``score_only``: score the datasets whose loop already ran, run none."""
     from analysis.loop import run_loop, write_loop
     from analysis.twin_runs import TwinRuns
     from analysis.measurements import load_dataset
-    datasets_dir, out_dir = Path(datasets_dir), Path(out_dir)
-    check_outputs(datasets_dir, out_dir, only, score_only)
+    out_dir = Path(out_dir)
+    check_outputs(datasets_dirs, out_dir, only, score_only)
     rows = []
-    for name in _dataset_names(datasets_dir):
+    for datasets_dir, name in suite_datasets(datasets_dirs):
         if only and name not in only:
             continue
         truth = json.loads((datasets_dir / "truth" / ("%s.truth.json" % name)).read_text())
@@ -358,28 +389,36 @@ def goal_lines(summ) -> list:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.open_suite")
-    ap.add_argument("--datasets", default=str(DATASETS_DIR), help="folder of the datasets")
+    ap.add_argument("--datasets", action="append", default=None,
+                    help="a folder of datasets, each with its truth in <folder>/truth "
+                    "(repeatable; default: %s)" % " ".join(
+                        str(d.relative_to(RESULTS_DIR.parent)) for d in DATASETS_DIRS))
     ap.add_argument("--out", default=str(OUT_DIR), help="folder of the loop outputs")
     ap.add_argument("--only", action="append", help="only this dataset (repeatable)")
     ap.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
     ap.add_argument("--no-rerun", action="store_true", help="skip each loop's twin rerun")
-    ap.add_argument("--null-draws", type=int, default=20,
-                    help="bootstrap draws per diagnosis step [datasets] (0: nominal threshold only)")
+    ap.add_argument("--null-draws", type=int, default=SUITE_NULL_DRAWS,
+                    help="bootstrap draws per diagnosis step [datasets] (0: nominal threshold "
+                    "only; default %(default)s)")
+    ap.add_argument("--per-wave", type=int, default=SUITE_PER_WAVE,
+                    help="design points per refinement wave of each loop (default "
+                    "%(default)s)")
     ap.add_argument("--score-only", action="store_true",
                     help="score the datasets whose loop already ran in --out, run no loop")
     a = ap.parse_args(argv)
     from analysis.atomic_dir import MARKER, OutputError, atomic_file
     from analysis.loop import LoopSettings
+    dirs = [Path(d) for d in (a.datasets or DATASETS_DIRS)]
     try:
-        check_outputs(a.datasets, a.out, a.only, a.score_only)
+        settings = LoopSettings(rerun=not a.no_rerun, null_draws=a.null_draws,
+                                per_wave=a.per_wave).check()
+        check_outputs(dirs, a.out, a.only, a.score_only)
     except (OutputError, ValueError, OSError) as exc:
         print("analysis.open_suite: error: %s" % exc, file=sys.stderr)
         return 2
     out = Path(a.out)
-    summ = run_suite(a.datasets, a.out, only=a.only, score_only=a.score_only,
-                     workers=a.workers,
-                     settings=LoopSettings(rerun=not a.no_rerun, null_draws=a.null_draws),
-                     log=lambda s: print(s, file=sys.stderr))
+    summ = run_suite(dirs, a.out, only=a.only, score_only=a.score_only, workers=a.workers,
+                     settings=settings, log=lambda s: print(s, file=sys.stderr))
     out.mkdir(parents=True, exist_ok=True)
     if not (out / MARKER).exists():
         (out / MARKER).write_text("written by the mill twin project; a rerun may replace "
@@ -396,7 +435,7 @@ def main(argv=None):
             lines.append(line)
     import os
     from analysis.config import REPO_ROOT
-    rel = os.path.relpath(Path(a.datasets).resolve(), REPO_ROOT)
+    rel = ", ".join(os.path.relpath(d.resolve(), REPO_ROOT) for d in dirs)
     if len(summ):
         with atomic_file(out / FIGURE) as tmp:
             write_open_suite_figure(summ, strength_ranges(), tmp)

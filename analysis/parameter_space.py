@@ -8,15 +8,13 @@ analysis needs - and reads everything else from there:
 * ``prior`` - the range a calibration may claim (Table 2 bounds for the contact parameters; the
   MM400 25 mL jar's for the apparatus, docs/apparatus.md says where each comes from). It lies
   inside the run config's physical bounds (checked at import);
-* ``step`` - the open model's response step (:mod:`analysis.open_model`: runs at the anchor
-  +- one step), for the base parameters the loop calibrates;
 * ``base`` - calibrated by default (``python -m analysis.calibrate`` without ``--free``).
 
 The effects' strengths are declared by each effect's file (``analysis/effects``, the diagnose
 range and strength coordinate); :func:`effect_strengths` lists them beside these.
 
-Every other module reads :data:`CALIBRATED`, :data:`APPARATUS`, :data:`PRIORS`,
-:data:`BASE_STEPS` and the reference point :func:`reference_parameters` (the Table-3
+Every other module reads :data:`CALIBRATED`, :data:`APPARATUS`, :data:`PRIORS` and the
+reference point :func:`reference_parameters` (the Table-3
 calibration's posterior mean) from here.
 """
 from __future__ import annotations
@@ -35,7 +33,6 @@ class Parameter:
     unit : twin_config's unit
     physical : (lower, upper) the run config accepts
     prior : (lower, upper) a calibration may claim
-    step : response step of the open model (None: not a base parameter of the loop)
     base : calibrated by default
     description : twin_config's description
     """
@@ -44,32 +41,31 @@ class Parameter:
     unit: str
     physical: tuple
     prior: tuple
-    step: float | None = None
     base: bool = False
     description: str = ""
 
 
-#: name: (prior range, open-model response step or None, calibrated by default)
+#: name: (prior range, calibrated by default)
 _DECLARED = {
-    "restitution": ((0.1, 0.7), 0.06, True),
-    "static_friction": ((0.3, 0.7), 0.15, True),
-    "rolling_friction": ((0.1, 0.5), 0.15, True),
-    "amplitude_m": ((0.010, 0.016), 6e-4, True),
-    "jar_inner_diameter_m": ((0.025, 0.032), None, False),
-    "jar_volume_m3": ((22e-6, 28e-6), None, False),
-    "jar_inner_length_m": ((0.036, 0.056), None, False),
-    "jar_fillet_radius_m": ((0.002, 0.0115), None, False),
+    "restitution": ((0.1, 0.7), True),
+    "static_friction": ((0.3, 0.7), True),
+    "rolling_friction": ((0.1, 0.5), True),
+    "amplitude_m": ((0.010, 0.016), True),
+    "jar_inner_diameter_m": ((0.025, 0.032), False),
+    "jar_volume_m3": ((22e-6, 28e-6), False),
+    "jar_inner_length_m": ((0.036, 0.056), False),
+    "jar_fillet_radius_m": ((0.002, 0.0115), False),
 }
 
 
 def _build():
     out = {}
-    for name, (prior, step, base) in _DECLARED.items():
+    for name, (prior, base) in _DECLARED.items():
         default, lo, hi, unit, role, desc = PARAMETERS[name]
         if not (lo <= prior[0] < prior[1] <= hi):
             raise ValueError("parameter_space: the prior range %s of %s lies outside the run "
                              "config's bounds (%s, %s)" % (prior, name, lo, hi))
-        out[name] = Parameter(name, role, unit, (lo, hi), tuple(prior), step, base, desc)
+        out[name] = Parameter(name, role, unit, (lo, hi), tuple(prior), base, desc)
     return out
 
 
@@ -81,8 +77,6 @@ CALIBRATED = {k: p.prior for k, p in SPACE.items() if p.base}
 APPARATUS = {k: p.prior for k, p in SPACE.items() if p.role == "apparatus"}
 #: every parameter a calibration may free
 PRIORS = {**CALIBRATED, **APPARATUS}
-#: the open model's base parameters and their response steps
-BASE_STEPS = {k: p.step for k, p in SPACE.items() if p.step is not None}
 
 
 def reference_parameters(calibration_dir=None) -> dict:
@@ -110,11 +104,11 @@ def effect_strengths() -> dict:
 
 
 def describe() -> str:
-    """A table of the movable parameters (name, role, unit, prior, physical bounds, step)."""
+    """A table of the movable parameters (name, role, unit, prior, physical bounds, base)."""
     rows = ["%-22s %-9s %-6s %-22s %-22s %s" % ("name", "role", "unit", "prior", "physical",
-                                                "step")]
+                                                "base")]
     for p in SPACE.values():
         rows.append("%-22s %-9s %-6s %-22s %-22s %s" % (
             p.name, p.role, p.unit, "%.4g-%.4g" % p.prior, "%.4g-%.4g" % p.physical,
-            "-" if p.step is None else "%.4g" % p.step))
+            "yes" if p.base else "-"))
     return "\n".join(rows)

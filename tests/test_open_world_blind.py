@@ -85,13 +85,14 @@ def test_kinetics_effect_is_named_first(tmp_path):
 def test_blind_case_generators_draw_what_they_say():
     """The suite's case lists: one-effect cases cycle the hidden effects with strengths inside
     their fraction of each range; two-effect cases hold two different hidden effects each,
-    every pair in turn; base parameters within one response step of the anchor; no decoy
+    every pair in turn; base parameters a sample of the calibration posterior (inside the
+    priors, the draws spread over it, not near its mean only); no decoy
     ever hidden; the same call gives the same cases (seeded)."""
     from itertools import combinations
     from analysis.catalog import DECOYS, candidates
-    from analysis.parameter_space import BASE_STEPS, reference_parameters
+    from analysis.parameter_space import CALIBRATED
     from analysis.studies import open_world_data as owd
-    cands, ref = candidates("dem"), reference_parameters()
+    cands = candidates("dem")
     one, two = owd.effect_cases(8), owd.pair_cases(6)
     assert owd.pair_cases(6) == two
     for cases, frac, n_eff in ((one, owd.EFFECT_FRACTION, 1), (two, owd.PAIR_FRACTION, 2)):
@@ -103,10 +104,12 @@ def test_blind_case_generators_draw_what_they_say():
                 s = c.strength_of(float(params[c.param])) / c.s_max
                 assert frac[0] - 0.01 <= s <= frac[1] + 0.01, (name, s)
             for p, v in base.items():
-                assert abs(v - ref[p]) <= BASE_STEPS[p] + 1e-9
+                assert CALIBRATED[p][0] <= v <= CALIBRATED[p][1]
     assert {tuple(sorted(s)) for s, _, _ in two.values()} == {
         tuple(sorted(p)) for p in combinations(owd.HIDDEN_EFFECTS, 2)}
     assert len({seed for _, seed, _ in list(one.values()) + list(two.values())}) == 14
+    e = np.array([owd.posterior_draw(k)["restitution"] for k in range(40)])
+    assert e.std() > 0.04            # the posterior's sd is 0.07: drawn over it, not clipped
 
 
 def test_each_hidden_effect_detectable_beyond_the_other(tmp_path):
@@ -236,3 +239,24 @@ def test_sigma_check_averages_z2_of_the_no_effect_datasets_only(tmp_path):
     assert 3.0 < c.loc["f_col_hz", "mean_z2_final"] < 5.0
     line = sigma_line(c.reset_index())
     assert "f_col_hz" in line and "v_mean_m_s" not in line.split("band:")[1]
+
+
+def test_suite_takes_the_folders_in_turn_and_refuses_a_name_twice(tmp_path):
+    """suite_datasets(): the datasets of several folders interleaved (a suite stopped early
+    has scored every kind), only folders holding dataset.json; the same name in two folders
+    is refused (the loop folders are named by the dataset)."""
+    from analysis.open_suite import suite_datasets
+    for folder, names in (("nulls", ["null_p00", "null_p01", "null_p02"]),
+                          ("effects", ["eff_p00", "eff_p01"]), ("pairs", ["pair_p00"])):
+        for n in names:
+            (tmp_path / folder / n).mkdir(parents=True)
+            (tmp_path / folder / n / "dataset.json").write_text("{}")
+    (tmp_path / "nulls" / "truth").mkdir()
+    got = suite_datasets([tmp_path / "nulls", tmp_path / "effects", tmp_path / "pairs"])
+    assert [n for _, n in got] == ["null_p00", "eff_p00", "pair_p00", "null_p01", "eff_p01",
+                                   "null_p02"]
+    assert got[1][0] == tmp_path / "effects"
+    (tmp_path / "pairs" / "eff_p01").mkdir()
+    (tmp_path / "pairs" / "eff_p01" / "dataset.json").write_text("{}")
+    with pytest.raises(ValueError, match="eff_p01"):
+        suite_datasets([tmp_path / "effects", tmp_path / "pairs"])

@@ -10,23 +10,17 @@ def test_priors_lie_inside_the_run_configs_bounds_and_carry_its_units():
         default, lo, hi, unit, role, _ = PARAMETERS[name]
         assert lo <= p.prior[0] < p.prior[1] <= hi
         assert p.unit == unit and p.role == role
-    # every base parameter of the loop has a response step smaller than its prior range
-    for name, step in ps.BASE_STEPS.items():
-        lo, hi = ps.SPACE[name].prior
-        assert 0 < step < (hi - lo) / 2
 
 
 def test_readers_share_the_declaration():
     from analysis import calibrate, sensitivity
-    from analysis.parameter_space import BASE_STEPS
     assert calibrate.CALIBRATED is ps.CALIBRATED and calibrate.PRIORS is ps.PRIORS
-    assert BASE_STEPS is ps.BASE_STEPS
     for k, b in sensitivity.CONTACT_BOUNDS.items():
         assert b == ps.CALIBRATED[k]
 
 
 def test_a_prior_outside_the_physical_bounds_is_refused(monkeypatch):
-    monkeypatch.setitem(ps._DECLARED, "restitution", ((0.1, 1.5), 0.06, True))
+    monkeypatch.setitem(ps._DECLARED, "restitution", ((0.1, 1.5), True))
     with pytest.raises(ValueError, match="restitution"):
         ps._build()
 

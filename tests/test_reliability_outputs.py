@@ -31,7 +31,7 @@ from analysis import loop
 from analysis import observe as obs
 from analysis import sweep
 from analysis.config import PAPER_TABLE3_DIR, REPO_ROOT
-from analysis.parameter_space import BASE_STEPS, CALIBRATED
+from analysis.parameter_space import CALIBRATED
 from yade_scripts import out_rule
 from yade_scripts.twin_config import PARAMETERS, ConfigError, complete_config
 
