@@ -896,8 +896,8 @@ def _diagnosis_table(steps, added, eff_se):
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                    parameters=None):
-    from analysis.report.loop_words import prior_sd, stated_stroke_words, \
-        UNCONSTRAINED_SE_RATIO
+    from analysis.report.loop_words import is_constrained, prior_sd, spread_of, \
+        stated_stroke_words
     head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
             "calibrated chi2/dof untestable (dof %d: no more observations than fitted "
             "parameters)" % cal.dof)
@@ -962,13 +962,16 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
     cands = candidates()
     bounds.update({k: (0.0, float(cands[k].s_max)) for k in added if k in cands})
     priors = getattr(model, "priors", None) or {}
+    ivs = ({} if parameters is None or "profile_lo" not in parameters else
+           {r["name"]: (r["profile_lo"], r["profile_hi"]) for r in parameters.to_dict("records")})
     for k in bounds:
         se = float(final.stderr.get(k, np.nan)) if k not in added else float(
             eff_se.get(k, np.nan))
+        lo, hi = (float(v) for v in ivs.get(k, (np.nan, np.nan)))
         sd = prior_sd(k, bounds, priors)
-        if np.isfinite(sd) and sd > 0 and not (np.isfinite(se)
-                                               and se < UNCONSTRAINED_SE_RATIO * sd):
-            loose.append("%s (se %.2g for a prior sd %.2g)" % (k, se, sd))
+        if np.isfinite(sd) and sd > 0 and not is_constrained(se, sd, lo, hi):
+            loose.append("%s (spread %.2g for a prior sd %.2g)" % (k, spread_of(se, lo, hi),
+                                                                   sd))
     if loose:
         parts.append("not constrained by the data: " + ", ".join(loose))
     if rr is not None:

@@ -304,6 +304,17 @@ def test_unconstrained_parameters_are_said_to_be_so():
     assert "not constrained" in p.loc["amplitude_m", "note"]       # no se: nothing known
     assert bool(p.loc["arc_motion", "constrained"])
     assert "%.0f %%" % (100 * lw.UNCONSTRAINED_SE_RATIO) in lw.UNCONSTRAINED_RULE
+    # a sharp local se on a flat ridge: the profile interval spans the prior -> not constrained
+    # (the blind eff_p01 loop: static friction se 0.024, profile 0.30-0.70, prior sd 0.11)
+    ridge = par.assign(se=[0.01, 0.024, 1e-5, 0.3], profile_lo=[0.33, 0.30, 0.0127, 8.6],
+                       profile_hi=[0.35, 0.70, 0.0129, 14.3])
+    q = lw.annotate_parameters(ridge, None, bounds=bounds,
+                               priors={"static_friction": (0.47, 0.11)}).set_index("name")
+    assert not bool(q.loc["static_friction", "constrained"])
+    assert "spread 93 %" in q.loc["static_friction", "note"]      # 0.40 / 3.92 / 0.11
+    assert bool(q.loc["restitution", "constrained"]) and bool(q.loc["amplitude_m",
+                                                                    "constrained"])
+    assert bool(q.loc["arc_motion", "constrained"])              # 1.45 < 0.7 x 15 / sqrt(12)
 
 
 def test_json_clean_writes_null_for_nan():

@@ -33,11 +33,28 @@ KIND_WORDS = {MODEL: "model (the emulator fitted to the dataset's twin runs)",
 #: flat prior over its bounds, (upper - lower) / sqrt(12)): the data narrow the prior by less
 #: than 30 %
 UNCONSTRAINED_SE_RATIO = 0.7
-UNCONSTRAINED_RULE = ("a parameter is marked *not constrained by the data* when its standard "
-                      "error is at least %.0f %% of its prior sd (the Gaussian prior's sd where "
-                      "the fit has one - the frictions -, else the sd of a flat prior over its "
-                      "bounds, (upper - lower) / sqrt(12)): its interval is about as wide as "
-                      "what was assumed before the data" % (100 * UNCONSTRAINED_SE_RATIO))
+UNCONSTRAINED_RULE = ("a parameter is marked *not constrained by the data* when its spread - "
+                      "the larger of its standard error and its 95 %% profile interval's width "
+                      "/ 3.92 (a flat ridge the local se does not see) - is at least %.0f %% of "
+                      "its prior sd (the Gaussian prior's sd where the fit has one - the "
+                      "frictions -, else the sd of a flat prior over its bounds, (upper - "
+                      "lower) / sqrt(12)): its interval is about as wide as what was assumed "
+                      "before the data" % (100 * UNCONSTRAINED_SE_RATIO))
+
+
+def spread_of(se, lo=float("nan"), hi=float("nan")) -> float:
+    """A fitted parameter's spread: the larger of its standard error and the width of its
+    95 % profile interval / (2 x 1.96) (NaN when neither is finite)."""
+    w = (float(hi) - float(lo)) / 3.92 if np.isfinite(lo) and np.isfinite(hi) else np.nan
+    vals = [v for v in (float(se), w) if np.isfinite(v)]
+    return max(vals) if vals else float("nan")
+
+
+def is_constrained(se, sd, lo=float("nan"), hi=float("nan")) -> bool:
+    """:data:`UNCONSTRAINED_RULE`: the spread (:func:`spread_of`) below
+    :data:`UNCONSTRAINED_SE_RATIO` of the prior sd ``sd``."""
+    s = spread_of(se, lo, hi)
+    return bool(np.isfinite(s) and s < UNCONSTRAINED_SE_RATIO * sd)
 
 
 # ------------------------------------------------------------------------------- the FAKE twin
@@ -264,14 +281,16 @@ def annotate_parameters(parameters, conditions=None, *, bounds=None, priors=None
             note.append("fitted for the conditions that state no stroke; stated: %s" % words)
         c = None
         if role != "held":
-            se = pd.to_numeric(pd.Series([r.get("se")]), errors="coerce").iloc[0]
+            se, lo, hi = pd.to_numeric(pd.Series([r.get("se"), r.get("profile_lo"),
+                                                  r.get("profile_hi")]), errors="coerce")
             sd = prior_sd(name, bounds, priors)
             if np.isfinite(sd) and sd > 0:
-                c = bool(np.isfinite(se) and se < UNCONSTRAINED_SE_RATIO * sd)
+                c = is_constrained(se, sd, lo, hi)
                 if not c:
-                    note.append("not constrained by the data (se %s of the prior sd %.3g)"
-                                % ("%.0f %%" % (100 * se / sd) if np.isfinite(se) else "unknown",
-                                   sd))
+                    sp = spread_of(se, lo, hi)
+                    note.append("not constrained by the data (spread %s of the prior sd %.3g)"
+                                % ("%.0f %%" % (100 * sp / sd) if np.isfinite(sp) else
+                                   "unknown", sd))
         constrained.append(c)
         p.at[i, "note"] = "; ".join(n for n in note if n)
     p["constrained"] = pd.array(constrained, dtype="boolean")
