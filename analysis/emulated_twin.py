@@ -351,10 +351,11 @@ class EmulatedTwin:
         asked (``state_dependent_se``), not a separate term."""
         return pd.Series(0.0, index=self.keys)
 
-    def chaos_sd(self, theta=None) -> pd.Series:
-        """One twin run's scatter about its mean at ``theta`` (default theta_ref)."""
+    def chaos_sd(self, theta=None, effects=None) -> pd.Series:
+        """One twin run's scatter about its mean at ``theta`` (default theta_ref) with the DEM
+        ``effects`` on."""
         theta = dict(theta or self.theta_ref)
-        parts = self.dem_parts(self.point(theta))
+        parts = self.dem_parts(self.point(theta, effects))
         return self._assemble(parts, theta, None, "chaos_sd")
 
     def flight_run_sd(self) -> pd.Series:

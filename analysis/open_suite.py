@@ -106,6 +106,10 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
             iv = _interval(parameters, k)
             cov.append(iv[0] <= s <= iv[1] if iv else abs(est - s) <= 1.96 * se)
     row["covered"] = all(cov) if cov else np.nan
+    for k, v in (truth.get("base_config") or {}).items():
+        iv = _interval(parameters, k)
+        if iv is not None:
+            row["%s_base_covered" % k] = bool(iv[0] <= float(v) <= iv[1])
     st = staircase.drop_duplicates("stage", keep="last").set_index("stage")["chi2_dof"]
     model_stages = [s for s in st.index if s != "twin rerun"]
     row["chi2_dof_calibrated"] = float(st.get("calibrated", np.nan))
@@ -378,6 +382,12 @@ def goal_lines(summ) -> list:
                  % (len(both), len(two), both["all_named"].sum(), len(both)))
     L.append("95 %% interval covers the true strength: %d / %d (goal >= 90 %%)"
              % (cov.sum(), len(cov)))
+    base = [c for c in summ.columns if c.endswith("_base_covered")]
+    if base:
+        L.append("95 %% profile interval covers the true base parameter (goal >= 90 %% each): "
+                 + ", ".join("%s %d / %d" % (c[:-len("_base_covered")],
+                                            summ[c].dropna().astype(bool).sum(),
+                                            summ[c].notna().sum()) for c in base))
     L.append("chi2/dof after the last add: median %.2f (goal 0.8-1.3), <= 1.5 in %d / %d "
              "(goal >= 90 %%)" % (last.median(), (last <= 1.5).sum(), len(last)))
     L.append("a decoy (%s) named: %d / %d (goal never)" % (", ".join(DECOYS), decoy.sum(),

@@ -435,3 +435,37 @@ def test_assumed_v_sd_fills_only_empty_cells_and_bad_values_are_exit_2(fake_data
     assert loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--fake",
                       "--v-rel-sd", "-1"]) == 2
     assert "v-rel-sd" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_emulator_vs_twin_covers_an_honest_emulator_and_flags_a_biased_one():
+    """The rerun check against known truth: twin means drawn about the emulator's mean with
+    its stated sd (latent^2 + chaos^2 / seeds) pass at p >= 0.01 in about 99 % of draws (the
+    rate the test claims); an emulator off by 3 of its sds at one observation fails."""
+    from analysis.loop import COVER_P, emulator_vs_twin
+    keys = pd.MultiIndex.from_product([["c1", "c2", "c3"], ["v_mean_m_s", "f_col_hz"]],
+                                      names=["condition_id", "observable"])
+    mean = pd.Series(np.linspace(1.0, 2.0, len(keys)), index=keys)
+    lat = pd.Series(0.02, index=keys)
+    chaos = pd.Series(0.05, index=keys)
+
+    class Stub:
+        state_dependent_se = True
+
+        def predict(self, theta, effects=None):
+            return mean + theta.get("bias", 0.0) * np.r_[1.0, np.zeros(len(keys) - 1)]
+
+        def model_se(self, theta, effects=None):
+            return lat
+
+        def chaos_sd(self, theta, effects=None):
+            return chaos
+
+    obs = keys.to_frame(index=False)
+    rng = np.random.default_rng(7)
+    sd = np.sqrt(lat ** 2 + chaos ** 2 / 3)
+    ps = [emulator_vs_twin(Stub(), obs, {"e": 0.3}, {}, mean + sd * rng.standard_normal(
+        len(keys)), 3)["p"] for _ in range(2000)]
+    assert np.mean(np.array(ps) >= COVER_P) == pytest.approx(0.99, abs=0.008)
+    out = emulator_vs_twin(Stub(), obs, {"bias": 6 * float(sd.iloc[0])}, {}, mean, 3)
+    assert out["p"] < COVER_P and out["worst"] == "c1 v_mean_m_s"
+    assert out["n"] == len(keys) and out["max_abs_z"] == pytest.approx(6.0)

@@ -173,6 +173,16 @@ def test_suite_scores_and_goal_lines_count_what_they_claim():
     assert "'nothing missing': 0 / 1" in L
     assert "named first and significant: 1 / 2" in L
     assert "a decoy (air_drag) named: 1 / 3" in L
+    # the base parameters' profile intervals against their true values
+    par = pd.DataFrame({"name": ["restitution", "static_friction"], "profile_lo": [0.33, 0.3],
+                        "profile_hi": [0.35, 0.7]})
+    t = {"effects": {}, "base_config": {"restitution": 0.36, "static_friction": 0.47,
+                                        "amplitude_m": 0.0125}}
+    r = score("d", {"status": "nothing_missing"}, diag([]), stairs(1.0), t, par)
+    assert r["restitution_base_covered"] is False and r["static_friction_base_covered"] is True
+    assert "amplitude_m_base_covered" not in r                     # no interval: not scored
+    L = "\n".join(goal_lines(pd.DataFrame(rows + [r])))
+    assert "restitution 0 / 1, static_friction 1 / 1" in L
 
 
 def test_score_only_scores_what_ran_and_draws_the_figure(tmp_path):
