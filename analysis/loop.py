@@ -129,13 +129,14 @@ class LoopSettings:
     seed: int = 0                    # design seed [-]
     flights: bool = True             # impact observables from jar tracks
     extra_effects: tuple = ()        # optional catalog entries diagnosed too
+    n_jobs: int = 1                  # processes for the bootstrap draws (--workers) [-]
 
     def check(self):
         """ValueError naming the first setting the loop cannot run with."""
         for name in ("points", "replicates"):
             if getattr(self, name) < 2:
                 raise ValueError("--%s must be >= 2, got %d" % (name, getattr(self, name)))
-        for name in ("per_wave", "rerun_replicates", "confirm_rounds"):
+        for name in ("per_wave", "rerun_replicates", "confirm_rounds", "n_jobs"):
             if getattr(self, name) < 1:
                 raise ValueError("--%s must be >= 1, got %d"
                                  % (name.replace("_", "-"), getattr(self, name)))
@@ -271,30 +272,41 @@ def _stage_row(stage, fit, n_params):
 
 # --------------------------------------------------------------------------- selection
 
+def _null_draw(w, o, base_params, effs, alpha, noise_observables, conditions):
+    """One bootstrap draw's diagnosis: (its largest identifiable chi2 gain, an effect named)."""
+    d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(),
+                 crn_correlation=getattr(w.model, "crn_correlation", 0.0),
+                 conditions=conditions, alpha=alpha, noise_observables=noise_observables,
+                 effect_se=w.effect_se, structure=False)
+    t = d.table[d.table["identifiable"]]
+    return (float(t["delta_chi2"].max()) if len(t) else 0.0), d.best is not None
+
+
 def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observables,
-               conditions, seed=0):
+               conditions, seed=0, n_jobs=1):
     """Parametric bootstrap of one diagnosis step: ``n_draws`` datasets drawn from the step's
     calibrated fit (no further effect; Gaussian noise with the stated sigma) are diagnosed like
     the real one. Returns (c, null_max, n_false): c >= 1 scales the nominal chi2-gain threshold
     so that the draws' median largest gain sits where the nominal law puts it - what the scan
     over each strength's range and the bounds add to chance (look-elsewhere); n_false counts
-    the draws in which an effect was significant at the nominal level."""
+    the draws in which an effect was significant at the nominal level. ``n_jobs`` > 1
+    diagnoses the draws in that many processes (the same draws, the same answer)."""
     rng = np.random.default_rng(seed)
     cal = diag.calibrated
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
     mu = cal.prediction.reindex(key).to_numpy(float)
     sig = np.asarray(cal.sigma, float)
-    null_max, n_false = [], 0
-    for _ in range(int(n_draws)):
-        o = obs.copy()
-        o["value"] = mu + sig * rng.standard_normal(len(mu))
-        d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(),
-                     crn_correlation=getattr(w.model, "crn_correlation", 0.0),
-                     conditions=conditions, alpha=alpha, noise_observables=noise_observables,
-                     effect_se=w.effect_se, structure=False)
-        t = d.table[d.table["identifiable"]]
-        null_max.append(float(t["delta_chi2"].max()) if len(t) else 0.0)
-        n_false += int(d.best is not None)
+    draws = [obs.assign(value=mu + sig * rng.standard_normal(len(mu)))
+             for _ in range(int(n_draws))]
+    args = (base_params, effs, alpha, noise_observables, conditions)
+    if int(n_jobs) > 1 and len(draws) > 1:
+        from joblib import Parallel, delayed
+        out = Parallel(n_jobs=min(int(n_jobs), len(draws)))(
+            delayed(_null_draw)(w, o, *args) for o in draws)
+    else:
+        out = [_null_draw(w, o, *args) for o in draws]
+    null_max = [g for g, _ in out]
+    n_false = sum(int(b) for _, b in out)
     k = max(int(diag.table["identifiable"].sum()), 1)
     sim = np.max(stats.chi2.rvs(1, size=(4000, k), random_state=1), axis=1)
     ratio = np.median(null_max) / max(float(np.median(sim)), 1e-12) if null_max else 1.0
@@ -302,7 +314,7 @@ def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observa
 
 
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
-                   noise_observables=None, log=print, null_draws=0):
+                   noise_observables=None, log=print, null_draws=0, n_jobs=1):
     """Forward selection of effects on a model with ``predict``, ``model_se``,
     ``resolution_se``, ``base_params`` and ``effects`` (an :class:`OpenTwinModel` or any model
     of that shape): diagnose, add the best significant effect (its strength joins the fitted
@@ -344,7 +356,8 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         if diag.best is not None and null_draws:
             c, nm, nf = null_scale(diag, w, obs, fitted_parameters(model, theta, added), effs,
                                    n_draws=null_draws, alpha=alpha, conditions=conditions,
-                                   noise_observables=noise_observables, seed=step)
+                                   noise_observables=noise_observables, seed=step,
+                                   n_jobs=n_jobs)
             nulls.append({"step": step, "scale": c, "null_max_delta_chi2": nm,
                           "n_false": nf, "n_draws": null_draws})
             t["threshold_scale"] = c
@@ -511,7 +524,7 @@ def select_stage(state: LoopState, log=print):
     fs = forward_select(state.model, state.obs, state.theta,
                         conditions=state.dataset.conditions, alpha=s.alpha,
                         max_effects=s.max_effects, noise_observables=noise_observables(state),
-                        log=log, null_draws=s.null_draws)
+                        log=log, null_draws=s.null_draws, n_jobs=s.n_jobs)
     state.selection = fs
     state.added = dict(fs["added"])
     state.theta = dict(fs["theta"])
@@ -1167,7 +1180,8 @@ def settings_of(a, max_effects=None, extra=()) -> LoopSettings:
                         focus_points=a.focus_points,
                         rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                         confirm_rounds=rounds, intervals=not a.no_intervals,
-                        seed=a.seed, extra_effects=tuple(extra))
+                        seed=a.seed, extra_effects=tuple(extra),
+                        n_jobs=max(int(getattr(a, "workers", 1) or 1), 1))
 
 
 def dof_limits(ds, max_effects, extra=()):
@@ -1310,7 +1324,8 @@ def _main(argv=None):
                     "apparatus, e.g. jar_inner_diameter_m=0.028 jar_fillet_radius_m=0.01 or "
                     "stl_path=my_jar.stl (docs/apparatus.md), rolling_model, dt_s; not the "
                     "conditions, seeds, effects or the calibrated base parameters")
-    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel processes: twin runs and the bootstrap draws [processes]")
     ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
                     help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")
     ap.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")

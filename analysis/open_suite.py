@@ -421,7 +421,7 @@ def main(argv=None):
     dirs = [Path(d) for d in (a.datasets or DATASETS_DIRS)]
     try:
         settings = LoopSettings(rerun=not a.no_rerun, null_draws=a.null_draws,
-                                per_wave=a.per_wave).check()
+                                per_wave=a.per_wave, n_jobs=a.workers).check()
         check_outputs(dirs, a.out, a.only, a.score_only)
     except (OutputError, ValueError, OSError) as exc:
         print("analysis.open_suite: error: %s" % exc, file=sys.stderr)

@@ -124,6 +124,12 @@ def test_forward_selection_finds_both_effects_and_stops():
     assert set(fs["added"]) == {"E1", "E2"}
     assert len(fs["null"]) == 2 and all(b["scale"] >= 1.0 for b in fs["null"])
     assert all(len(b["null_max_delta_chi2"]) == 8 for b in fs["null"])
+    # the draws diagnosed in 2 processes: the same draws, the same answer
+    par = loop.forward_select(m, _toy_obs(m, truth, 0.01, 0), {"a": 2.0, "b": 0.3},
+                              log=lambda s: None, null_draws=8, n_jobs=2)
+    assert [b["null_max_delta_chi2"] for b in par["null"]] == \
+        [b["null_max_delta_chi2"] for b in fs["null"]]
+    assert par["added"] == fs["added"]
 
 
 # --------------------------------------------------------------------------- the command
@@ -145,8 +151,9 @@ def fake_dataset(tmp_path, monkeypatch):
 
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     out = tmp_path / "out"
+    # --workers 2: the fake twin's runs and the bootstrap draws in two processes each
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
-                    "--null-draws", "2"] + SMALL)
+                    "--null-draws", "2"] + SMALL[:-2] + ["--workers", "2"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "staircase: baseline" in text and "wrote" in text
@@ -184,6 +191,8 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert {"calibrated", "final", "twin_rerun", "z_twin_rerun"} <= set(comp.columns)
     info = json.loads((out / "loop.json").read_text())
     assert info["conditions"][0]["label"] == "15 mm ball at 20 Hz"
+    assert info["settings"]["n_jobs"] == 2
+    assert all(len(b["null_max_delta_chi2"]) == 2 for b in info["bootstrap"])
     assert info["model"] == "emulator" and info["new_runs"] == len(runs)
     assert info["fake_twin"] is True
     page = (out / "report.md").read_text()
