@@ -405,13 +405,14 @@ def main(argv=None):
                         str(d.relative_to(RESULTS_DIR.parent)) for d in DATASETS_DIRS))
     ap.add_argument("--out", default=str(OUT_DIR), help="folder of the loop outputs")
     ap.add_argument("--only", action="append", help="only this dataset (repeatable)")
-    ap.add_argument("--workers", type=int, default=2, help="parallel twin runs [processes]")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="parallel processes: twin runs and bootstrap draws [processes]")
     ap.add_argument("--no-rerun", action="store_true", help="skip each loop's twin rerun")
     ap.add_argument("--null-draws", type=int, default=SUITE_NULL_DRAWS,
                     help="bootstrap draws per diagnosis step [datasets] (0: nominal threshold "
                     "only; default %(default)s)")
     ap.add_argument("--per-wave", type=int, default=SUITE_PER_WAVE,
-                    help="design points per refinement wave of each loop (default "
+                    help="design points per refinement wave of each loop [points] (default "
                     "%(default)s)")
     ap.add_argument("--score-only", action="store_true",
                     help="score the datasets whose loop already ran in --out, run no loop")
