@@ -384,7 +384,7 @@ def goal_lines(summ) -> list:
              % (cov.sum(), len(cov)))
     base = [c for c in summ.columns if c.endswith("_base_covered")]
     if base:
-        L.append("95 %% profile interval covers the true base parameter (goal >= 90 %% each): "
+        L.append("95 % profile interval covers the true base parameter (goal >= 90 % each): "
                  + ", ".join("%s %d / %d" % (c[:-len("_base_covered")],
                                             summ[c].dropna().astype(bool).sum(),
                                             summ[c].notna().sum()) for c in base))
