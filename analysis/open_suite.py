@@ -137,9 +137,32 @@ def loop_model(dataset, loop_dir):
     return m, fit_observations(st.obs0, m)
 
 
-def _leftover_chi2(m, obs, truth, true, held) -> float:
+def truth_observations(obs, truth) -> pd.DataFrame:
+    """``obs`` with every value replaced by the twin's own at the truth, without the
+    measurement noise: the run means the dataset was made from (``twin_means``), the impact
+    observables of those runs (``twin_flights``) and the true yields; rows the truth does not
+    hold are dropped (the priors' pseudo-observations are kept as they are)."""
+    kin = truth.get("kinetics") or {}
+    vals = {}
+    for cid, d in (truth.get("twin_means") or {}).items():
+        vals.update({(cid, k): v for k, v in d.items()})
+    for cid, d in (truth.get("twin_flights") or {}).items():
+        vals.update({(cid, k): v for k, v in d.items()})
+    for cid, ys in (kin.get("yields_true") or {}).items():
+        vals.update({(cid, "yield_pct@%gmin" % t): y
+                     for t, y in zip(kin.get("yield_times_min") or (), ys)})
+    own = obs["condition_id"].isin({c for c, _ in vals})
+    new = [vals.get((c, o), np.nan) for c, o in zip(obs["condition_id"], obs["observable"])]
+    out = obs.assign(value=np.where(own, new, obs["value"]))
+    return out[np.isfinite(out["value"].to_numpy(float))].reset_index(drop=True)
+
+
+def _leftover_chi2(m, obs, truth, held) -> float:
     """chi2 of the base parameters fitted, with the effects ``held`` on at their true
-    strengths, to the noise-free data of every ``true`` effect on at the true base point."""
+    strengths, to the twin's own noise-free data at the truth (the better of two fits: from the
+    true base point and from the model's reference) (:func:`truth_observations`:
+    every hidden effect on, the twin's runs, not the emulator - which can be wrong in an
+    effect's corner the loop never needed), with the dataset's sds."""
     from analysis.diagnose import BaseParameter, calibrate_base
     theta = dict(m.theta_ref, **{k: float(v) for k, v in (truth.get("base_config") or {}).items()
                                  if k in m.theta_ref})
@@ -147,14 +170,16 @@ def _leftover_chi2(m, obs, truth, true, held) -> float:
     for k in ("slope_pct_per_kj", "intercept_pct"):
         if k in kin:
             theta[k] = float(kin[k])
-    pred = m.predict(theta, true)
-    key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
-    obs = obs.assign(value=pred.reindex(key).to_numpy(float))
-    start = [BaseParameter(p.name, float(np.clip(theta.get(p.name, p.value), p.lower, p.upper)),
-                           p.lower, p.upper) for p in m.base_params()]
-    _, cal = calibrate_base(m.predict, obs, start, model_se=m.model_se(),
-                            fixed_effects=dict(held) or None)
-    return float(cal.chi2)
+    data = truth_observations(obs, truth)
+    best = np.inf
+    for at_truth in (True, False):      # the fit is local: from the truth and from the reference
+        start = [BaseParameter(p.name, float(np.clip(theta.get(p.name, p.value), p.lower,
+                                                     p.upper)) if at_truth else p.value,
+                               p.lower, p.upper) for p in m.base_params()]
+        _, cal = calibrate_base(m.predict, data, start, model_se=m.model_se(),
+                                fixed_effects=dict(held) or None)
+        best = min(best, float(cal.chi2))
+    return best
 
 
 def _true_dem(truth) -> dict:
@@ -163,23 +188,23 @@ def _true_dem(truth) -> dict:
 
 
 def detectable_chi2(dataset, truth, loop_dir) -> float:
-    """The chi2 the hidden DEM effects leave after recalibration without them: the loop's
-    model (:func:`loop_model`) predicts the dataset's observables, noise-free, at the true base
-    parameters with the true effects on; the base parameters are then fitted without effects,
-    with the dataset's sds. NaN when there is no DEM effect or no model."""
+    """The chi2 the hidden DEM effects leave after recalibration without them: the twin's own
+    noise-free data at the truth (:func:`truth_observations`) fitted by the loop's model
+    (:func:`loop_model`) without effects, with the dataset's sds (one twin realisation: its
+    chaos stays in, as in the data). NaN when there is no DEM effect or no model."""
     true = _true_dem(truth)
     if not true:
         return float("nan")
     m, obs = loop_model(dataset, loop_dir)
     if m is None:
         return float("nan")
-    return _leftover_chi2(m, obs, truth, true, {})
+    return _leftover_chi2(m, obs, truth, {})
 
 
 def detectable_each(dataset, truth, loop_dir) -> dict:
-    """effect -> the chi2 each hidden DEM effect leaves beyond the others: the noise-free data
-    of all hidden effects, the base parameters fitted with every OTHER hidden effect on at its
-    true strength. An effect under :data:`DETECTABLE_CHI2` here cannot be told from a shift of
+    """effect -> the chi2 each hidden DEM effect leaves beyond the others: the twin's
+    noise-free data at the truth, the base parameters fitted with every OTHER hidden effect on
+    (in the loop's model) at its true strength. An effect under :data:`DETECTABLE_CHI2` here cannot be told from a shift of
     the base parameters once the other is found. {} when there is no DEM effect or a run is
     missing."""
     true = _true_dem(truth)
@@ -188,7 +213,7 @@ def detectable_each(dataset, truth, loop_dir) -> dict:
     m, obs = loop_model(dataset, loop_dir)
     if m is None:
         return {}
-    return {k: _leftover_chi2(m, obs, truth, true, {j: s for j, s in true.items() if j != k})
+    return {k: _leftover_chi2(m, obs, truth, {j: s for j, s in true.items() if j != k})
             for k in true}
 
 
