@@ -541,36 +541,44 @@ def focus_stage(state: LoopState, twin, log=print):
     emulator believes the strength is), run at every condition; the emulator refitted with
     them, then the calibration and the forward selection redone on it - the emulator is
     refined where the verdict is made before the verdict is taken."""
+    state.focus = focus_wave(state, twin, log)
+
+
+def focus_wave(state: LoopState, twin, log=print, *, wave="focus", seed_add=0) -> dict | None:
+    """One focus wave (see :func:`focus_stage`) about the current fit; its record {n_points,
+    n_runs, before, after} (None with ``focus_points`` 0). ``seed_add`` draws another cloud."""
     from analysis.history_matching import design_runs, effect_input, posterior_cloud
     s, m = state.settings, state.model
     if s.focus_points < 1:
-        return
+        return None
     cands = candidates()
     dem = {k: v for k, v in state.added.items() if cands[k].kind == "dem"}
     centre = dict(state.theta, **{effect_input(k): v for k, v in dem.items()})
     centre = {k: v for k, v in centre.items() if k in m.space.bounds()}
     cov = state.final.cov.rename(index=lambda k: effect_input(k) if k in dem else k,
                                  columns=lambda k: effect_input(k) if k in dem else k)
-    pts = posterior_cloud(m.space, centre, cov, s.focus_points, seed=s.seed + FOCUS_SEED0,
+    pts = posterior_cloud(m.space, centre, cov, s.focus_points,
+                          seed=s.seed + FOCUS_SEED0 + seed_add,
                           spread=[effect_input(k) for k in dem])
     pts.insert(0, "point", np.arange(len(pts)) + int(m.runs_["point"].max()) + 1)
     runs = design_runs(m.space, pts, m.conditions, seeds=(s.seed + FOCUS_SEED0,),
                        base_config=state.base_config)
-    runs["wave"] = "focus"
-    log("focus wave: %d points about the fit (%s), %d runs"
-        % (len(pts), _fmt_theta(dict(state.theta, **state.added)), len(runs)))
+    runs["wave"] = wave
+    log("%s wave: %d points about the fit (%s), %d runs"
+        % (wave, len(pts), _fmt_theta(dict(state.theta, **state.added)), len(runs)))
     runs = twin(runs)
     m.fit(pd.concat([m.runs_, runs], ignore_index=True))
     before = {"point": dict(state.theta, **state.added), "effects": dict(state.added),
               "chi2_dof": state.final.chi2_dof}
     calibrate_stage(state)
     select_stage(state, log)
-    state.focus = {"n_points": int(len(pts)), "n_runs": int(len(runs)), "before": before,
-                   "after": {"point": dict(state.theta, **state.added),
-                             "effects": dict(state.added), "chi2_dof": state.final.chi2_dof}}
     if set(before["effects"]) != set(state.added):
-        log("after the focus wave the selection changed: %s -> %s"
-            % (", ".join(before["effects"]) or "nothing", ", ".join(state.added) or "nothing"))
+        log("after the %s wave the selection changed: %s -> %s"
+            % (wave, ", ".join(before["effects"]) or "nothing",
+               ", ".join(state.added) or "nothing"))
+    return {"n_points": int(len(pts)), "n_runs": int(len(runs)), "before": before,
+            "after": {"point": dict(state.theta, **state.added),
+                      "effects": dict(state.added), "chi2_dof": state.final.chi2_dof}}
 
 
 def twin_means(model, runs, theta, effects):
@@ -638,7 +646,11 @@ def emulator_vs_twin(model, obs, theta, added, twin_mean, n_seeds) -> dict:
 
 def confirm_stage(state: LoopState, twin, log=print):
     """The twin at the final point (a design point), the emulator refitted with its runs, the
-    final fit redone; a point that moves gets its own rerun (``confirm_rounds``)."""
+    final fit redone; the next round (``confirm_rounds`` at most) when the point moved by
+    :data:`CONFIRM_TOL_SE` or more, or when the rerun fell beyond the emulator's stated
+    uncertainty (:func:`emulator_vs_twin` p < :data:`COVER_P`) - then a focus wave about the
+    refitted point first (:func:`focus_wave`: the emulator is wrong there, one point's runs
+    do not teach it the neighbourhood), the calibration and the selection redone on it."""
     from analysis.history_matching import design_runs
     s, m = state.settings, state.model
     cands = candidates()
@@ -674,8 +686,21 @@ def confirm_stage(state: LoopState, twin, log=print):
         state.final = refit
         state.theta = {k: float(refit.params[k]) for k in state.theta}
         state.added = {k: float(refit.params[k]) for k in state.added}
-        if moved < CONFIRM_TOL_SE:
+        missed = score["emulator_vs_twin"]["p"] < COVER_P
+        if (moved < CONFIRM_TOL_SE and not missed) or r + 1 == s.confirm_rounds:
             break
+        if missed:
+            log("the emulator missed the twin rerun (chi2 %.1f for %d observations, p = %.2g): "
+                "a focus wave about the refitted point before the next rerun"
+                % (score["emulator_vs_twin"]["chi2"], score["emulator_vs_twin"]["n"],
+                   score["emulator_vs_twin"]["p"]))
+            before = list(state.stair)
+            state.reruns[-1]["focus"] = focus_wave(state, twin, log,
+                                                   wave="focus after rerun %d" % (r + 1),
+                                                   seed_add=r + 1)
+            # the second pass's calibration and additions follow the rows so far (its
+            # baseline is the first one's)
+            state.stair = before + state.stair[1:]
 
 
 def interval_stage(state: LoopState):
@@ -1295,7 +1320,8 @@ def _main(argv=None):
     ap.add_argument("--confirm-rounds", type=int, default=d.confirm_rounds,
                     help="most twin reruns: after each the emulator is refitted with the "
                     "rerun's runs and the fit redone; a point that moves by more than %.1f se "
-                    "gets the next [rounds] (default %%(default)s)" % CONFIRM_TOL_SE)
+                    "gets the next, a rerun beyond the emulator's stated uncertainty a focus "
+                    "wave first [rounds] (default %%(default)s)" % CONFIRM_TOL_SE)
     ap.add_argument("--no-intervals", action="store_true",
                     help="skip the profile-likelihood intervals (the se only)")
     ap.add_argument("--alpha", type=float, default=d.alpha,

@@ -478,3 +478,51 @@ def test_emulator_vs_twin_covers_an_honest_emulator_and_flags_a_biased_one():
     out = emulator_vs_twin(Stub(), obs, {"bias": 6 * float(sd.iloc[0])}, {}, mean, 3)
     assert out["p"] < COVER_P and out["worst"] == "c1 v_mean_m_s"
     assert out["n"] == len(keys) and out["max_abs_z"] == pytest.approx(6.0)
+
+
+def test_a_rerun_beyond_the_emulator_gets_a_focus_wave_before_the_next(tmp_path):
+    """Stop rule of the confirmation: a first rerun the emulator cannot have predicted (the
+    twin's speeds 15 % up in that rerun only) fails the emulator-vs-twin check, so a focus
+    wave about the refitted point runs before the second rerun; the staircase keeps the first
+    rerun's rows and the second pass's calibration after them, and loop.json records the
+    wave."""
+    from analysis.hidden import make_hidden_dataset
+    ds_dir, _ = make_hidden_dataset(
+        "fk4", {"jar_compliance": {"f_n_hz": 110.0}}, conditions=NEW_CONDITIONS, replicates=1,
+        seed=3, runner=run_fake_twin, runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds",
+        truth_dir=tmp_path / "truth", twin_v_rel_sd=0.01, twin_f_col_sd_hz=0.5,
+        progress=False, v_rel_sd=0.005, yield_times_min=())
+
+    class FirstRerunOff:
+        def __init__(self):
+            self.inner = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
+                                  progress=False)
+
+        @property
+        def new_runs(self):
+            return self.inner.new_runs
+
+        def __call__(self, runs):
+            out = self.inner(runs)
+            off = out["wave"].astype(str) == "confirm 1"
+            for c in ("v_mean_m_s", "v_mean_jar_m_s"):
+                out.loc[off, c] *= 1.15
+            return out
+
+    settings = loop.LoopSettings(points=10, waves=1, per_wave=3, focus_points=3, null_draws=0,
+                                 rerun_replicates=2, confirm_rounds=2, intervals=False,
+                                 max_effects=1)
+    ds = load_dataset(ds_dir)
+    res = loop.run_loop(ds, settings, twin=FirstRerunOff(), progress=False,
+                   log=lambda s: None)
+    waves = list(dict.fromkeys(res.model_runs["wave"].astype(str)))
+    assert waves == ["0", "1", "focus", "confirm 1", "focus after rerun 1", "confirm 2"]
+    fw = res.model_runs[res.model_runs["wave"].astype(str) == "focus after rerun 1"]
+    assert fw["point"].nunique() == 3
+    reruns = res.info["reruns"]
+    assert reruns[0]["emulator_vs_twin"]["p"] < loop.COVER_P
+    assert reruns[0]["focus"]["n_runs"] == len(fw)
+    st = list(res.staircase["stage"])
+    assert st.count("twin rerun") == 2 and st.count("calibrated") == 2
+    assert st.index("twin rerun") < len(st) - 1 - st[::-1].index("calibrated")
+    assert st[-2:] == ["twin rerun", "refitted on the twin reruns"]

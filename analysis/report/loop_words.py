@@ -93,13 +93,14 @@ def stage_words(stage: str) -> str:
 
 
 def quoted_stages(staircase) -> dict:
-    """{role: row index} of the staircase rows the loop's verdict quotes: 'calibrated',
+    """{role: row index} of the staircase rows the loop's verdict quotes: 'calibrated' (the
+    last),
     'final' (the last model row, when an effect was added or the twin was rerun) and 'twin
     rerun' (the last real-twin rerun)."""
     st = [str(s) for s in staircase["stage"]]
     out = {}
-    if "calibrated" in st:
-        out["calibrated"] = st.index("calibrated")
+    if "calibrated" in st:      # the last: a focus wave after a rerun calibrates again
+        out["calibrated"] = len(st) - 1 - st[::-1].index("calibrated")
     model = [i for i, s in enumerate(st) if stage_kind(s) != TWIN and s != "baseline"]
     if model and model[-1] != out.get("calibrated"):
         out["final"] = model[-1]
