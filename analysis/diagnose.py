@@ -93,7 +93,7 @@ from scipy import optimize, stats
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
                                    Dataset, measurement_table, yield_table)
 
-EFFECT_KINDS = ("dem", "kinetics")
+EFFECT_KINDS = ("dem", "kinetics", "observation")
 #: strengths scanned (evenly over each effect's range) for the fit's starting points
 SCAN_POINTS = 13
 _OBS_WORDS = {"v_mean_m_s": "speed", "f_col_hz": "collision frequency", "yield_pct": "yield"}
@@ -123,7 +123,8 @@ class BaseParameter:
 class Effect:
     """A candidate effect: strength bounds, the null strength (effect off) and its kind.
 
-    kind : 'dem' (acts in the ball dynamics) or 'kinetics' (acts in the yield model)
+    kind : 'dem' (acts in the ball dynamics), 'kinetics' (acts in the yield model) or
+        'observation' (acts in the measurement chain, on the twin's outputs)
     """
 
     name: str
@@ -169,8 +170,9 @@ class FitResult:
     jac : DataFrame, shape (n, k), d(prediction / sigma) / d(param) at the solution
     at_bound : list of parameter names that ended on a bound
     sigma : ndarray or None, the sigma per key the fit was scored with
-    penalty : float, sum log(sigma^2 / sigma_0^2) at the optimum when sigma depends on the
-        strength (``effect_se``), else 0; ``objective`` = chi2 + penalty (-2 log likelihood up
+    penalty : float, sum log(sigma^2 / sd^2) at the optimum when sigma depends on the
+        parameters (a callable model_se) or the strength (``effect_se``), else 0 (sd the data's
+        own, the same reference in every fit on these observations); ``objective`` = chi2 + penalty (-2 log likelihood up
         to a constant) is what fits are compared by
     """
 
@@ -401,6 +403,13 @@ class Problem:
         self.model_se = se
         self.sd = sd
         self.sigma = np.sqrt(sd ** 2 + se ** 2)
+        # the log-sigma penalty's reference, the same in every Problem on these observations
+        # - so the objectives of fits made in different Problems (a calibration, a selection
+        # step, a profile's inner fits) can be compared: with a model_se that depends on where
+        # it is asked, the data's own sd (sigma >= sd; sigma only where no sd is stated), else
+        # the constant sigma (the strength's effect_se adds to it)
+        self._sigma_ref = (np.where(sd > 0, sd, self.sigma) if self._se_fn is not None
+                           else self.sigma)
         self.effect_se = effect_se
         self._esig = {}
         if np.any(self.sigma <= 0):
@@ -473,11 +482,12 @@ class Problem:
         return self._se_fn is not None or self.effect_se is not None
 
     def penalty(self, effects, theta=None):
-        """sum log(sigma^2 / sigma_0^2) at these effect strengths (and base parameters, with a
-        callable model_se); 0 when sigma is constant."""
+        """sum log(sigma^2 / sd^2) at these effect strengths (and base parameters, with a
+        callable model_se), sd the data's own: -2 log L = chi2 + penalty up to a constant
+        common to every fit on these observations; 0 when sigma is constant."""
         if not self.varying_sigma:
             return 0.0
-        return float(np.sum(2.0 * np.log(self.sigma_for(effects, theta) / self.sigma)))
+        return float(np.sum(2.0 * np.log(self.sigma_for(effects, theta) / self._sigma_ref)))
 
     def sigma_for(self, effects, theta=None):
         """sigma with the model's extra uncertainty at these effect strengths (``effect_se``,
@@ -519,7 +529,7 @@ class Problem:
 
         With ``effect_se`` sigma depends on the strength, and the fit maximises the Gaussian
         likelihood: besides the whitened residuals, the objective holds sum log(sigma^2 /
-        sigma_0^2) (as residual rows sqrt(log(...)) >= 0), so a strength is not preferred for
+        sd^2) (as residual rows sqrt(log(...)) >= 0, sigma >= sd), so a strength is not preferred for
         the uncertainty it adds. ``chi2`` is the residuals' part at the optimum."""
         names = [p.name for p in self.base]
         lo = np.array([p.lower for p in self.base], float)
@@ -534,7 +544,7 @@ class Problem:
         span = hi - lo
         nb = len(self.base)
         varying = (effect is not None and self.effect_se is not None) or self._se_fn is not None
-        sigma_0 = self.sigma
+        sigma_0 = self._sigma_ref
 
         def unpack(u):
             x = lo + span * np.clip(u, 0.0, 1.0)
@@ -604,7 +614,8 @@ class Problem:
                          chi2=float(np.sum(z ** 2)), dof=self.n,
                          prediction=pd.Series(mu, index=self.keys),
                          residuals=pd.Series(z, index=self.keys), jac=pd.DataFrame(),
-                         at_bound=[], sigma=sig)
+                         at_bound=[], sigma=sig,
+                         penalty=self.penalty(eff or {}, theta) if self.varying_sigma else 0.0)
 
 
 def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
@@ -745,7 +756,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         footprint = math.sqrt(max(fp2 - proj_noise, 0.0))
         # the signature against its own noise, entry by entry (matched chi-square test over
         # the independently drawn observables); a kinetics effect's change carries no noise
-        if e.kind == "kinetics":
+        if e.kind in ("kinetics", "observation"):     # a function of the model's mean
             footprint = math.sqrt(fp2)
             snr = math.inf if fp2 > 0 else 0.0
         else:
@@ -784,7 +795,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
             if f0.objective < fit.objective:
                 fit = f0
         fits[name] = fit
-        d = max(cal.chi2 - fit.objective, 0.0)   # 2 x the log-likelihood gain
+        d = max(cal.objective - fit.objective, 0.0)   # 2 x the log-likelihood gain
         dof_after = max(fit.dof, 1)
         p_lr = float(stats.chi2.sf(d, 1)) if d > 0 else 1.0
         if e.null_on_bound:
