@@ -22,7 +22,7 @@ class Candidate:
     "diagnose" entry of its DECLARATION, :meth:`from_declaration`).
 
     name : effect module name
-    kind : 'dem' or 'kinetics'
+    kind : 'dem', 'kinetics' or 'observation'
     param : the catalog parameter the strength sets
     s_max : top of the diagnose range of the strength coordinate (the signature strength of a
         DEM effect)
@@ -119,7 +119,7 @@ OPTIONAL_CANDIDATES = _declared_candidates(optional=True)
 
 
 def candidates(kind=None):
-    """The candidates of one kind ('dem', 'kinetics') or all, by name (the optional ones
+    """The candidates of one kind ('dem', 'kinetics', 'observation') or all, by name (the optional ones
     included: this is the lookup; the default catalog is :data:`CANDIDATES`)."""
     return {c.name: c for c in CANDIDATES + OPTIONAL_CANDIDATES
             if kind is None or c.kind == kind}

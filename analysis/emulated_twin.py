@@ -75,6 +75,8 @@ class EmulatedTwin:
     yield_times_min : {condition_id: [t, ...]} - yield times of the dataset
     theta_ref : dict - the reference base parameters (the design's centre; the loop's start)
     seed : int - the hyperparameter optimiser's seed
+    observation : names of the observation effects diagnosed (catalog kind 'observation':
+        the measurement chain; applied to the assembled prediction, never a design input)
 
     Attributes (after :meth:`fit`)
     ----------
@@ -84,7 +86,8 @@ class EmulatedTwin:
     """
 
     def __init__(self, conditions, space: DesignSpace, *, velocity_frame="lab",
-                 flight_conditions=(), yield_times_min=None, theta_ref=None, seed=0):
+                 flight_conditions=(), yield_times_min=None, theta_ref=None, seed=0,
+                 observation=()):
         self.conditions = conditions.reset_index(drop=True)
         self.space = space
         if velocity_frame not in SPEED_COLUMN:
@@ -98,6 +101,13 @@ class EmulatedTwin:
         self.base_names = tuple(space.base_names)
         self.held = {}
         self.seed = seed
+        from analysis.catalog import candidates
+        obs_c = candidates("observation")
+        bad = [n for n in observation if n not in obs_c]
+        if bad:
+            raise ValueError("not an observation effect: %s (observation effects: %s)"
+                             % (", ".join(bad), ", ".join(obs_c) or "none"))
+        self.observation = {n: obs_c[n] for n in observation}
         #: the emulator's mean is a smooth function: two predictions share their noise
         #: (diagnose's finite differences carry none)
         self.crn_correlation = 1.0
@@ -292,7 +302,7 @@ class EmulatedTwin:
         table = np.vstack([getattr(parts[o], which)[0]
                            for o in (v_col, "f_col_hz") + self.flight_obs])
         out = np.empty(len(self.keys))
-        out[direct] = table[d_row, d_col]
+        out[direct] = table[d_row, d_col] * self._observed(parts, effects)[d_row, d_col]
         if len(y_pos):
             eff_obj, slope, intercept = self._kinetics(theta, effects)
             v_m = parts[v_col].mean[0][y_col]
@@ -308,6 +318,22 @@ class EmulatedTwin:
                 out[y_pos] = abs(slope) * y_t / 1000.0 * np.hypot(m * v_m * f_m * v_s,
                                                                   e_kin * f_s)
         return pd.Series(out, index=self.keys, dtype=float)
+
+    def _observed(self, parts, effects):
+        """(stacked observables x conditions) factors of the observation effects switched on
+        in ``effects`` (1 without): the measurement chain reports the twin's value times
+        this; the yields (the chemistry sees the true speed) are not touched."""
+        names = ("v_mean_m_s", "f_col_hz") + self.flight_obs
+        fac = np.ones((len(names), len(self._X_cond)))
+        on = [k for k, v in (effects or {}).items() if k in self.observation and v]
+        if on:
+            from effects import load_effects
+            f_col = parts["f_col_hz"].mean[0]
+            for k in on:
+                e = load_effects(self.observation[k].spec(effects[k]), side="observation")[0]
+                for j, o in enumerate(names):
+                    fac[j] *= e.factor_of(o, f_col)
+        return fac
 
     @property
     def _kin(self):
@@ -332,7 +358,7 @@ class EmulatedTwin:
     def _check_effects(self, effects):
         kin = self._kin
         unknown = [k for k in (effects or {}) if effect_input(k) not in self.space.effect_names
-                   and k not in kin]
+                   and k not in kin and k not in self.observation]
         if unknown:
             raise ValueError("unknown effect(s) %s" % unknown)
 
@@ -383,13 +409,14 @@ class EmulatedTwin:
         return out
 
     def effects(self):
-        """diagnose Effects: the design's DEM candidates over [0, s_max] and, with yields, the
-        kinetics candidates."""
+        """diagnose Effects: the design's DEM candidates over [0, s_max], with yields the
+        kinetics candidates, and the observation effects asked for."""
         from analysis.diagnose import Effect
         from analysis.catalog import candidates
         cands = list(self.space.effects)
         if self.has_yields:
             cands += list(candidates("kinetics").values())
+        cands += list(self.observation.values())
         return [Effect(c.name, 0.0, float(c.s_max), null=0.0, kind=c.kind,
                        description="strength = %s" % c.strength_label) for c in cands]
 

@@ -434,7 +434,8 @@ class LoopState:
 def loop_space(dataset, extra_effects=()):
     """The design space of a loop on ``dataset``: the base parameters of :data:`DEFAULT_BASE`
     (the stroke left out when every condition states it) over their priors, the default DEM
-    catalog and the optional entries asked for."""
+    catalog and the optional DEM entries asked for (an observation entry is no design input:
+    :class:`analysis.emulated_twin.EmulatedTwin` applies it to its predictions)."""
     from analysis.history_matching import DesignSpace
     from analysis.run_configs import stated_amplitude_m
     from analysis.catalog import OPTIONAL_CANDIDATES
@@ -443,7 +444,8 @@ def loop_space(dataset, extra_effects=()):
     if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
         names.remove("amplitude_m")
     opt = {c.name: c for c in OPTIONAL_CANDIDATES}
-    effs = [c for c in CANDIDATES if c.kind == "dem"] + [opt[n] for n in extra_effects]
+    effs = [c for c in CANDIDATES if c.kind == "dem"] + [opt[n] for n in extra_effects
+                                                         if opt[n].kind == "dem"]
     return DesignSpace.of(names, tuple(effs))
 
 
@@ -471,7 +473,9 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
            for p in space.base}
     model = EmulatedTwin(dataset.conditions, space, velocity_frame=dataset.velocity_frame,
                          flight_conditions=fl_ids, yield_times_min=yield_times_of(dataset),
-                         theta_ref=ref, seed=settings.seed)
+                         theta_ref=ref, seed=settings.seed,
+                         observation=[n for n in settings.extra_effects
+                                      if candidates()[n].kind == "observation"])
     if "amplitude_m" not in space.base_names:
         model.held["amplitude_m"] = "stated by the dataset"
     return LoopState(dataset=dataset, settings=settings, base_config=base_config, obs0=obs0,
@@ -880,6 +884,9 @@ def optional_effects(names, base_config=None):
         if n not in opt:
             raise ValueError("--with-effect %s: not an optional catalog entry (optional: %s; "
                              "the others are always diagnosed)" % (n, ", ".join(opt)))
+        if opt[n].kind != "dem":       # the measurement chain: no run, no jar to act on
+            out += [] if n in out else [n]
+            continue
         cfg = dict(base_config or {}, effects=opt[n].spec(opt[n].s_max))
         try:
             jar_config(twin_config.complete_config(cfg))

@@ -2,7 +2,8 @@
 
 ``load_effects({"name": {"param": value}}, side="dem")`` validates names and parameters against
 each module's ``DECLARATION`` and returns the effect objects of one side ('dem' for the YADE
-scene, 'kinetics' for the yield model, None for all). ``diagnose_entries()`` lists the effects'
+scene, 'kinetics' for the yield model, 'observation' for the measurement chain, None for
+all). ``diagnose_entries()`` lists the effects'
 diagnose entries (the candidates of analysis.catalog). Standard library only.
 """
 import importlib
@@ -103,7 +104,7 @@ def load_effects(spec, side=None):
     Parameters
     ----------
     spec : dict {name: {param: value}}
-    side : 'dem', 'kinetics' or None - keep only effects of this kind
+    side : 'dem', 'kinetics', 'observation' or None - keep only effects of this kind
 
     Raises
     ------

@@ -2,8 +2,8 @@
 
 An effect module ``effects/<name>.py`` holds one ``DECLARATION`` dict and, for a DEM effect, a
 subclass of :class:`Effect` named ``Effect`` whose hooks the scene calls (yade_scripts/mill.py);
-a kinetics effect provides ``modify_kinetics`` instead (see effects/template.py and
-effects/README.md). Parameters are declared once, with units and physical bounds; the scene, the
+a kinetics effect provides ``modify_kinetics`` instead, an observation effect (the
+measurement chain) ``observed_factor`` (see effects/template.py and effects/README.md). Parameters are declared once, with units and physical bounds; the scene, the
 kinetic model, the diagnosis and the hidden-effect generator all read that declaration.
 """
 
@@ -339,6 +339,24 @@ class KineticsEffect(_Declared):
     def yield_pct(self, e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct):
         return self.modify(e_kin_j, f_col_hz, time_s, slope_pct_per_kj, intercept_pct,
                                  self.params)
+
+
+class ObservationEffect(_Declared):
+    """One switched-on observation effect: the measurement chain, not the mill. Binds the
+    module's ``observed_factor(observable, f_col_hz, params)`` to its params.
+
+    ``load_effects(spec, side='observation')`` returns these; ``effect.factor_of(observable,
+    f_col_hz)`` is the factor [-] (broadcast to ``f_col_hz``, the twin's collision rate per
+    condition) by which the measurement chain reports the twin's true ``observable``. The twin
+    and the chemistry (which sees the true speed) are unchanged: no run is made for it.
+    """
+    factor = None  # staticmethod(the module's observed_factor), set by the subclass
+
+    def factor_of(self, observable, f_col_hz):
+        import numpy as np
+        f = np.asarray(f_col_hz, dtype=float)
+        return np.broadcast_to(np.asarray(self.factor(observable, f, self.params), float),
+                               f.shape)
 
 
 def nonnegative_array(name, x):

@@ -25,6 +25,8 @@ EXPECTED_CANDIDATES = [
 EXPECTED_OPTIONAL = [
     ("end_fillet", "dem", "extra_fillet_m", 0.006, "m", "linear", 1.0, None, None),
     ("stroke_drift", "dem", "fall_per_hz", 0.015, "1/Hz", "linear", 1.0, None, None),
+    ("apparent_scale", "observation", "blur_fraction", 0.1, "-", "linear", 1.0, None, None),
+    ("smoothing_window", "observation", "window_s", 0.006, "s", "linear", 1.0, None, None),
 ]
 
 

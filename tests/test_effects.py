@@ -22,18 +22,18 @@ def mod(name):
 
 
 # ---------------------------------------------------------------- declarations and validation
-def test_catalog_holds_the_twelve_effects():
+def test_catalog_holds_the_fourteen_effects():
     assert set(NAMES) == {"viscoelastic_restitution", "arc_motion", "jar_compliance",
                           "powder_layer", "rolling_resistance", "air_drag", "impact_threshold",
                           "first_order_depletion", "induction_period", "temperature_rise",
-                          "end_fillet", "stroke_drift"}
+                          "end_fillet", "stroke_drift", "apparent_scale", "smoothing_window"}
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_declaration_is_complete_and_consistent(name):
     d = effects.declaration(name)
     assert DECL_KEYS <= set(d) <= DECL_KEYS | {"diagnose"}
-    assert d["name"] == name and d["kind"] in ("dem", "kinetics")
+    assert d["name"] == name and d["kind"] in ("dem", "kinetics", "observation")
     assert d["physics"] and d["changes"] and d["references"]
     assert d["parameters"] and set(d["null"]) <= set(d["parameters"]) and d["null"]
     for p, s in d["parameters"].items():
@@ -137,9 +137,12 @@ def test_load_effects_splits_by_kind():
     spec = {n: {} for n in NAMES}
     dem = effects.load_effects(spec, side="dem")
     kin = effects.load_effects(spec, side="kinetics")
-    assert {e.name for e in dem} | {e.name for e in kin} == set(NAMES)
+    obs = effects.load_effects(spec, side="observation")
+    assert {e.name for e in dem} | {e.name for e in kin} | {e.name for e in obs} == set(NAMES)
     assert all(isinstance(e, base.Effect) for e in dem)
     assert all(isinstance(e, base.KineticsEffect) for e in kin)
+    assert {e.name for e in obs} == {"apparent_scale", "smoothing_window"}
+    assert all(isinstance(e, base.ObservationEffect) for e in obs)
     assert {e.name for e in kin} == {"impact_threshold", "first_order_depletion",
                                      "induction_period", "temperature_rise"}
 
@@ -630,3 +633,41 @@ def test_stroke_drift_drives_the_jar_at_its_stroke(tmp_path):
     with pytest.raises(TwinRunError, match="stroke factor"):
         twin_run(dict(cfg, frequency_hz=35.0, effects={"stroke_drift": {
             "fall_per_hz": 0.03, "f_ref_hz": 3.0}}), tmp_path)
+
+
+# --------------------------------------------------------------------------- observation effects
+
+def test_smoothing_window_factor_is_a_moving_average_through_ping_pong_flips():
+    """Analytic truth: a ball bouncing end to end has v_x = +-V with a sign flip at every
+    impact (f_col flips per second); a moving average of width tau over that square wave
+    loses V tau / 2 of |v| at each flip, so mean |v_smoothed| / V = 1 - f_col tau / 2 - what
+    the effect says - at two collision rates; lengths' other observables are untouched."""
+    from scipy.ndimage import uniform_filter1d
+    fps = 200_000.0
+    t = np.arange(0.0, 1.0, 1.0 / fps)
+    for f_col in (45.0, 60.0):
+        vx = 2.0 * np.where(np.floor(t * f_col) % 2 == 0, 1.0, -1.0)
+        f_col = np.sum(vx != np.roll(vx, 1)) / 1.0        # flips per second, the wrap's too
+        for tau in (0.002, 0.005):
+            w = int(round(tau * fps)) | 1
+            sm = uniform_filter1d(vx, w, mode="wrap")
+            ratio = np.mean(np.abs(sm)) / 2.0
+            eff = effects.load_effects({"smoothing_window": {"window_s": w / fps}},
+                                       side="observation")[0]
+            assert eff.factor_of("v_mean_m_s", f_col) == pytest.approx(ratio, abs=2e-3)
+            assert eff.factor_of("f_col_hz", f_col) == 1.0
+            assert eff.factor_of("v_in_m_s", f_col) == 1.0
+    with pytest.raises(ValueError):
+        eff.factor_of("v_mean_m_s", np.nan)
+
+
+def test_apparent_scale_factor_is_the_blurred_diameter_ratio():
+    """A scale from an apparent diameter d + delta: every length-derived observable is
+    x d / (d + delta); ratios, phases and the collision rate are not."""
+    d, delta = 0.02, 0.001
+    eff = effects.load_effects({"apparent_scale": {"blur_fraction": delta / d}},
+                               side="observation")[0]
+    for o in ("v_mean_m_s", "v_mean_jar_m_s", "v_in_m_s", "jar_amplitude_m", "vy_rms_m_s"):
+        assert eff.factor_of(o, np.array([50.0, 55.0])) == pytest.approx(d / (d + delta))
+    for o in ("f_col_hz", "e_app", "impact_phase_rad"):
+        assert np.all(eff.factor_of(o, np.array([50.0, 55.0])) == 1.0)

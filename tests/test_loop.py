@@ -526,3 +526,41 @@ def test_a_rerun_beyond_the_emulator_gets_a_focus_wave_before_the_next(tmp_path)
     assert st.count("twin rerun") == 2 and st.count("calibrated") == 2
     assert st.index("twin rerun") < len(st) - 1 - st[::-1].index("calibrated")
     assert st[-2:] == ["twin rerun", "refitted on the twin reruns"]
+
+
+def test_observation_effects_act_on_the_emulators_predictions_not_on_the_twin(tmp_path):
+    """An observation effect asked for (--with-effect) is a candidate of kind 'observation'
+    and no design input; the emulator's prediction with it on is the prediction without it
+    times the effect's factor - the smoothed speed v (1 - f_col tau / 2) with the emulator's
+    own f_col, every length / (1 + s) for the scale - while the collision rate and the yields
+    (the chemistry sees the true speed) are unchanged; the model's sd scales with the mean."""
+    from analysis.hidden import make_hidden_dataset
+    ds_dir, _ = make_hidden_dataset(
+        "obs", {}, conditions=NEW_CONDITIONS, replicates=1, seed=5, runner=run_fake_twin,
+        runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth",
+        twin_v_rel_sd=0.004, twin_f_col_sd_hz=0.3, progress=False, v_rel_sd=0.005)
+    settings = loop.LoopSettings(points=8, extra_effects=("apparent_scale", "smoothing_window"))
+    state = loop.read_stage(load_dataset(ds_dir), settings, track=False, log=lambda s: None)
+    m = state.model
+    assert not any("smoothing" in n or "apparent" in n for n in m.space.names)
+    kinds = {e.name: e.kind for e in m.effects()}
+    assert kinds["smoothing_window"] == kinds["apparent_scale"] == "observation"
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
+                    progress=False)
+    m.fit(twin(loop.wave0_runs(state)))
+    theta = dict(m.theta_ref)
+    p0, se0 = m.predict(theta), m.model_se(theta)
+    tau, s = 0.004, 0.05
+    p1 = m.predict(theta, {"smoothing_window": tau})
+    p2 = m.predict(theta, {"apparent_scale": s})
+    se1 = m.model_se(theta, {"smoothing_window": tau})
+    for c in NEW_CONDITIONS["condition_id"]:
+        fac = 1.0 - p0[(c, "f_col_hz")] * tau / 2.0
+        assert p1[(c, "v_mean_m_s")] == pytest.approx(p0[(c, "v_mean_m_s")] * fac, rel=1e-12)
+        assert se1[(c, "v_mean_m_s")] == pytest.approx(se0[(c, "v_mean_m_s")] * fac, rel=1e-12)
+        assert p2[(c, "v_mean_m_s")] == pytest.approx(p0[(c, "v_mean_m_s")] / (1.0 + s))
+        assert p1[(c, "f_col_hz")] == p2[(c, "f_col_hz")] == p0[(c, "f_col_hz")]
+    ys = [k for k in p0.index if k[1].startswith("yield_pct")]
+    assert ys and np.allclose(p1[ys], p0[ys]) and np.allclose(p2[ys], p0[ys])
+    with pytest.raises(ValueError, match="not an observation effect"):
+        type(m)(m.conditions, m.space, observation=("end_fillet",))
