@@ -302,7 +302,10 @@ class EmulatedTwin:
         table = np.vstack([getattr(parts[o], which)[0]
                            for o in (v_col, "f_col_hz") + self.flight_obs])
         out = np.empty(len(self.keys))
-        out[direct] = table[d_row, d_col] * self._observed(parts, effects)[d_row, d_col]
+        out[direct] = table[d_row, d_col]
+        fac = self._observed(parts, effects)
+        if fac is not None:
+            out[direct] *= fac[d_row, d_col]
         if len(y_pos):
             eff_obj, slope, intercept = self._kinetics(theta, effects)
             v_m = parts[v_col].mean[0][y_col]
@@ -321,18 +324,20 @@ class EmulatedTwin:
 
     def _observed(self, parts, effects):
         """(stacked observables x conditions) factors of the observation effects switched on
-        in ``effects`` (1 without): the measurement chain reports the twin's value times
-        this; the yields (the chemistry sees the true speed) are not touched."""
+        in ``effects``, None without (the hot path: most predictions have none): the
+        measurement chain reports the twin's value times this; the yields (the chemistry sees
+        the true speed) are not touched."""
+        on = [k for k, v in (effects or {}).items() if k in self.observation and v]
+        if not on:
+            return None
+        from effects import load_effects
         names = ("v_mean_m_s", "f_col_hz") + self.flight_obs
         fac = np.ones((len(names), len(self._X_cond)))
-        on = [k for k, v in (effects or {}).items() if k in self.observation and v]
-        if on:
-            from effects import load_effects
-            f_col = parts["f_col_hz"].mean[0]
-            for k in on:
-                e = load_effects(self.observation[k].spec(effects[k]), side="observation")[0]
-                for j, o in enumerate(names):
-                    fac[j] *= e.factor_of(o, f_col)
+        f_col = parts["f_col_hz"].mean[0]
+        for k in on:
+            e = load_effects(self.observation[k].spec(effects[k]), side="observation")[0]
+            for j, o in enumerate(names):
+                fac[j] *= e.factor_of(o, f_col)
         return fac
 
     @property

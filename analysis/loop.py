@@ -884,14 +884,12 @@ def optional_effects(names, base_config=None):
         if n not in opt:
             raise ValueError("--with-effect %s: not an optional catalog entry (optional: %s; "
                              "the others are always diagnosed)" % (n, ", ".join(opt)))
-        if opt[n].kind != "dem":       # the measurement chain: no run, no jar to act on
-            out += [] if n in out else [n]
-            continue
-        cfg = dict(base_config or {}, effects=opt[n].spec(opt[n].s_max))
-        try:
-            jar_config(twin_config.complete_config(cfg))
-        except twin_config.ConfigError as exc:
-            raise ValueError("--with-effect %s: %s" % (n, exc))
+        if opt[n].kind == "dem":       # the measurement chain has no run, no jar to act on
+            cfg = dict(base_config or {}, effects=opt[n].spec(opt[n].s_max))
+            try:
+                jar_config(twin_config.complete_config(cfg))
+            except twin_config.ConfigError as exc:
+                raise ValueError("--with-effect %s: %s" % (n, exc))
         if n not in out:
             out.append(n)
     return out
