@@ -295,7 +295,8 @@ def refocus_sample(space: DesignSpace, cand: pd.DataFrame, imp_max, n, seed, eff
 
 
 def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_points: int,
-                    seed: int, *, scale: float = FOCUS_SCALE, spread=()) -> pd.DataFrame:
+                    seed: int, *, scale: float = FOCUS_SCALE, spread=(),
+                    ridge=None) -> pd.DataFrame:
     """``n_points`` design points where a fit's posterior lies (a focus wave).
 
     A Latin hypercube in whitened coordinates mapped through the fit's Gaussian approximation
@@ -311,6 +312,13 @@ def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_point
     wave measures the twin's response to them where the fit does not believe the answer lies
     too: an emulator wrong about an effect's strength cannot be corrected by runs about its own
     wrong answer. The other inputs keep their Gaussian (their marginal without the spread ones).
+
+    ``ridge`` (a callable: DataFrame of the spread inputs' values -> DataFrame of other inputs)
+    moves each point's centre to where the data are plausible at its spread values - the base
+    parameters profiled at that strength - and the Gaussian about it is then the conditional
+    one (given the spread inputs): the wave follows the ridge of a strength traded against the
+    base parameters instead of the fit's tangent to it, so the emulator learns the ridge where
+    its stated sd would otherwise pull every later fit back to the runs it has.
 
     Returns
     -------
@@ -328,7 +336,7 @@ def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_point
     lo = np.array([b[k][0] for k in free])
     hi = np.array([b[k][1] for k in free])
     mu = np.clip(np.array([float(centre.get(k, 0.0)) for k in free]), lo, hi)
-    c = cov.loc[free, free].to_numpy(float)
+    c = _given(cov, free, spread) if ridge is not None else cov.loc[free, free].to_numpy(float)
     sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = c / np.outer(sd, sd)
@@ -346,12 +354,34 @@ def posterior_cloud(space: DesignSpace, centre: dict, cov: pd.DataFrame, n_point
         u = qmc.LatinHypercube(d=len(free) + len(spread),
                                rng=np.random.default_rng(seed)).random(n_points)
         z = norm.ppf(np.clip(u[:, :len(free)], 1e-6, 1 - 1e-6))
+        for j, k in enumerate(spread):
+            pts[k] = b[k][0] + u[:, len(free) + j] * (b[k][1] - b[k][0])
+        if ridge is not None and spread:
+            on = ridge(pts[spread].reset_index(drop=True))
+            mu = np.column_stack([np.clip(on[k].to_numpy(float), lo[i], hi[i])
+                                  if k in on else np.full(len(pts), mu[i])
+                                  for i, k in enumerate(free)]) if free else mu
         x = np.clip(mu + (z @ L.T) * sd, lo, hi)
         for i, k in enumerate(free):
             pts[k] = x[:, i]
-        for j, k in enumerate(spread):
-            pts[k] = b[k][0] + u[:, len(free) + j] * (b[k][1] - b[k][0])
     return pts[space.names]
+
+
+def _given(cov: pd.DataFrame, free, spread) -> np.ndarray:
+    """The covariance of ``free`` given ``spread`` (the Gaussian's conditional; the marginal
+    when ``cov`` does not name the spread inputs or their block is singular)."""
+    s = [k for k in spread if k in cov.index]
+    c = cov.loc[free, free].to_numpy(float)
+    if not s or not free:
+        return c
+    c_fs = cov.loc[free, s].to_numpy(float)
+    c_ss = cov.loc[s, s].to_numpy(float)
+    if not (np.all(np.isfinite(c_fs)) and np.all(np.isfinite(c_ss))):
+        return c
+    try:
+        return c - c_fs @ np.linalg.solve(c_ss, c_fs.T)
+    except np.linalg.LinAlgError:
+        return c
 
 
 def design_runs(space: DesignSpace, points: pd.DataFrame, conditions, *, seeds=(0,),

@@ -563,7 +563,8 @@ def focus_wave(state: LoopState, twin, log=print, *, wave="focus", seed_add=0) -
                                  columns=lambda k: effect_input(k) if k in dem else k)
     pts = posterior_cloud(m.space, centre, cov, s.focus_points,
                           seed=s.seed + FOCUS_SEED0 + seed_add,
-                          spread=[effect_input(k) for k in dem])
+                          spread=[effect_input(k) for k in dem],
+                          ridge=ridge_of(state, {effect_input(k): k for k in dem}))
     pts.insert(0, "point", np.arange(len(pts)) + int(m.runs_["point"].max()) + 1)
     runs = design_runs(m.space, pts, m.conditions, seeds=(s.seed + FOCUS_SEED0,),
                        base_config=state.base_config)
@@ -583,6 +584,40 @@ def focus_wave(state: LoopState, twin, log=print, *, wave="focus", seed_add=0) -
     return {"n_points": int(len(pts)), "n_runs": int(len(runs)), "before": before,
             "after": {"point": dict(state.theta, **state.added),
                       "effects": dict(state.added), "chi2_dof": state.final.chi2_dof}}
+
+
+def ridge_of(state: LoopState, names: dict):
+    """The ridge a focus wave follows: a callable from held strengths (a DataFrame whose
+    columns are the design inputs ``names`` maps to effect names) to the base parameters
+    fitted at them on the emulator's mean (chi2 with the data's sd only: where the data are
+    plausible, not where the emulator is sure), each fit started from the nearest one already
+    made towards the current fit (a continuation along one strength)."""
+    m, obs = state.model, state.obs
+    bp = m.base_params()
+
+    def at(held: dict, start: dict) -> dict:
+        eff = dict(state.added, **held)
+
+        def pred(theta, effects=None):
+            return m.predict(theta, dict(effects or {}, **eff))
+        starts = [BaseParameter(p.name, float(np.clip(start.get(p.name, p.value), p.lower,
+                                                      p.upper)), p.lower, p.upper) for p in bp]
+        _, fit = calibrate_base(pred, obs, starts)
+        return {p.name: float(fit.params[p.name]) for p in bp}
+
+    def ridge(values: pd.DataFrame) -> pd.DataFrame:
+        held = values.rename(columns=names)
+        first = held.columns[0]
+        s0 = float(state.added.get(first, 0.0))
+        out = [None] * len(held)
+        for side in (held[first] >= s0, held[first] < s0):
+            start = dict(state.theta)
+            order = held[side][first].sub(s0).abs().sort_values().index
+            for i in order:
+                start = at({k: float(held.at[i, k]) for k in held.columns}, start)
+                out[i] = start
+        return pd.DataFrame(out, index=values.index)
+    return ridge
 
 
 def twin_means(model, runs, theta, effects):

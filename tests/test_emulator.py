@@ -334,3 +334,30 @@ def test_posterior_cloud_spreads_an_effect_over_its_whole_range():
     assert big["restitution"].mean() == pytest.approx(0.40, abs=0.002)
     with pytest.raises(ValueError, match="not inputs"):
         posterior_cloud(space, centre, cov, 4, seed=0, spread=["youngs_modulus"])
+
+
+def test_posterior_cloud_follows_a_ridge_with_the_conditional_spread():
+    """A focus wave along a ridge: with a Gaussian posterior the ridge of the base parameters
+    at a held strength is the conditional mean, and the spread about it the conditional sd
+    (here 0.6 of the marginal for rho = -0.8) - both known; the strength stays stratified."""
+    space = _space()
+    e0 = space.effect_names[0]
+    lo, hi = space.bounds()[e0]
+    centre = {"restitution": 0.40, "amplitude_m": 0.0130, "static_friction": 0.5,
+              "rolling_friction": 0.3, e0: 0.3 * hi}
+    names = ["restitution", e0]
+    sd = np.array([0.01, 0.2 * hi])
+    rho = -0.8
+    cov = pd.DataFrame(np.array([[1.0, rho], [rho, 1.0]]) * np.outer(sd, sd), index=names,
+                       columns=names)
+
+    def ridge(held):
+        s = held[e0].to_numpy(float)
+        return pd.DataFrame({"restitution": 0.40 + rho * sd[0] / sd[1] * (s - centre[e0])})
+    pts = posterior_cloud(space, centre, cov, 400, seed=6, spread=[e0], ridge=ridge)
+    resid = pts["restitution"] - ridge(pts[[e0]])["restitution"]
+    assert resid.mean() == pytest.approx(0.0, abs=0.002)
+    assert resid.std() == pytest.approx(2.0 * sd[0] * np.sqrt(1 - rho ** 2), rel=0.1)
+    assert np.corrcoef(pts[e0], pts["restitution"])[0, 1] < -0.6    # along the ridge
+    bins = np.floor((pts[e0].to_numpy() - lo) / (hi - lo) * 400).astype(int)
+    assert sorted(bins) == list(range(400))

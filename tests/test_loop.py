@@ -564,3 +564,40 @@ def test_observation_effects_act_on_the_emulators_predictions_not_on_the_twin(tm
     assert ys and np.allclose(p1[ys], p0[ys]) and np.allclose(p2[ys], p0[ys])
     with pytest.raises(ValueError, match="not an observation effect"):
         type(m)(m.conditions, m.space, observation=("end_fillet",))
+
+
+def test_the_focus_waves_ridge_is_the_profile_of_the_base_parameters():
+    """The ridge a focus wave follows, against analytic truth: speeds v_c = a_c e (1 - k s) and
+    a rate pinned by the stroke, noise-free data made at (e 0.5, A 12 mm, s 0): at any held
+    strength s the chi2 is zero at e = 0.5 / (1 - k s) with A unchanged - from whichever side
+    of the fit the strength lies."""
+    from types import SimpleNamespace
+    conds = ["a", "b", "c"]
+    gain = np.array([1.0, 1.3, 1.7])
+    k = 0.4
+    keys = pd.MultiIndex.from_product([conds, ["v_mean_m_s", "f_col_hz"]],
+                                      names=["condition_id", "observable"])
+
+    class Analytic:
+        def base_params(self):
+            return [BaseParameter("restitution", 0.5, 0.1, 0.95),
+                    BaseParameter("amplitude_m", 0.012, 0.010, 0.014)]
+
+        def predict(self, theta, effects):
+            s = float(effects.get("arc", 0.0))
+            v = gain * theta["restitution"] * (1 - k * s)
+            f = 1e3 * theta["amplitude_m"] * gain
+            return pd.Series(np.column_stack([v, f]).ravel(), index=keys)
+
+    truth = Analytic().predict({"restitution": 0.5, "amplitude_m": 0.012}, {})
+    obs = pd.DataFrame({"condition_id": keys.get_level_values(0),
+                        "observable": keys.get_level_values(1), "value": truth.to_numpy(),
+                        "sd": 0.005 * truth.to_numpy()})
+    state = SimpleNamespace(model=Analytic(), obs=obs, added={"arc": 0.5},
+                            theta={"restitution": 0.5 / (1 - 0.2), "amplitude_m": 0.012})
+    ridge = loop.ridge_of(state, {"arc_in": "arc"})
+    held = pd.DataFrame({"arc_in": [0.9, 0.1, 0.6, 0.0, 0.3]})
+    on = ridge(held)
+    assert list(on.index) == list(held.index)
+    np.testing.assert_allclose(on["restitution"], 0.5 / (1 - k * held["arc_in"]), rtol=1e-4)
+    np.testing.assert_allclose(on["amplitude_m"], 0.012, rtol=1e-4)
