@@ -63,7 +63,7 @@ from analysis.measurements import load_dataset
 # calibrated parameters and their prior bounds (CALIBRATED), the apparatus parameters a
 # calibration may free (APPARATUS), every parameter ``--free NAME[=LO:HI]`` accepts (PRIORS):
 # declared in analysis.parameter_space
-from analysis.parameter_space import APPARATUS, CALIBRATED, PRIORS
+from analysis.parameter_space import APPARATUS, CALIBRATED, PRIORS, parse_free
 
 OUTPUTS = ("v_mean_m_s", "f_col_hz")
 CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
@@ -126,44 +126,6 @@ def observe(table, velocity_frame="lab", operator="auto"):
         ob = observe_recording(rd, frame=velocity_frame)
         out.loc[i, "v_mean_m_s"] = ob.v_mean_m_s
         out.loc[i, "f_col_hz"] = ob.f_col_hz
-    return out
-
-
-def parse_free(specs):
-    """Calibrated parameters and bounds from ``--free`` strings ``NAME`` or ``NAME=LO:HI``.
-
-    A name must be one of :data:`PRIORS`; a given range must lie inside the declared prior
-    range (a calibration cannot claim a value outside the physical range). None or [] gives
-    :data:`CALIBRATED`.
-
-    Raises
-    ------
-    ValueError - unknown name, malformed or out-of-range bounds, a name given twice
-    """
-    if not specs:
-        return dict(CALIBRATED)
-    out = {}
-    for spec in specs:
-        name, _, rng = str(spec).partition("=")
-        name = name.strip()
-        if name not in PRIORS:
-            raise ValueError("--free %s: not a calibratable parameter (known: %s)"
-                             % (name, ", ".join(PRIORS)))
-        if name in out:
-            raise ValueError("--free %s given twice" % name)
-        lo, hi = PRIORS[name]
-        if rng:
-            try:
-                a, b = (float(x) for x in rng.split(":"))
-            except ValueError:
-                raise ValueError("--free %s: bounds must be LO:HI, got %r" % (name, rng))
-            if not (np.isfinite(a) and np.isfinite(b) and a < b):
-                raise ValueError("--free %s: need finite LO < HI, got %r" % (name, rng))
-            if a < lo or b > hi:
-                raise ValueError("--free %s: %g:%g leaves the declared range %g:%g"
-                                 % (name, a, b, lo, hi))
-            lo, hi = a, b
-        out[name] = (lo, hi)
     return out
 
 

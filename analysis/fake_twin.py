@@ -95,6 +95,20 @@ def toy_effect_factor(effects, frequency_hz, ball_diameter_m, v_m_s):
     return fac
 
 
+#: the FAKE twin's end fillet: the speed falls with the fillet's radius above the default jar's
+#: (5 mm), more at high frequency and for a small ball (loosely docs/apparatus.md's tilted
+#: impact normal)
+FAKE_FILLET_M, FAKE_FILLET_SLOPE_1_M = 0.005, 12.0
+
+
+def toy_apparatus_factor(cfg):
+    """Made-up multiplicative change of the toy speed by the jar's end fillet (tests only):
+    1 - k (r - r0) (f / 25 Hz)^2 (20.6 mm / d)^2, exactly 1 for the default jar."""
+    r = float(cfg.get("jar_fillet_radius_m") or FAKE_FILLET_M)
+    return 1.0 - (FAKE_FILLET_SLOPE_1_M * (r - FAKE_FILLET_M) * (cfg["frequency_hz"] / 25.0) ** 2
+                  * (0.0206 / cfg["ball_diameter_m"]) ** 2)
+
+
 def _noise_rng(cfg):
     key = json.dumps({k: cfg[k] for k in ("restitution", "static_friction", "rolling_friction",
                                           "amplitude_m", "frequency_hz", "ball_diameter_m",
@@ -109,7 +123,7 @@ def fake_summary(config):
                               cfg["rolling_friction"], cfg["amplitude_m"],
                               cfg["frequency_hz"], cfg["ball_diameter_m"])
     v = float(v) * toy_effect_factor(cfg.get("effects"), cfg["frequency_hz"],
-                                     cfg["ball_diameter_m"], float(v))
+                                     cfg["ball_diameter_m"], float(v)) * toy_apparatus_factor(cfg)
     rng = _noise_rng(cfg)
     v = float(v) * (1.0 + FAKE_V_REL_SD * rng.standard_normal())
     fcol = float(fcol) + FAKE_FCOL_SD_HZ * rng.standard_normal()

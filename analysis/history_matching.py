@@ -73,14 +73,19 @@ class DesignSpace:
     effects: tuple = ()
 
     @classmethod
-    def of(cls, base_names, effects=()):
-        """The space of the named base parameters (declared in parameter_space) and effects."""
+    def of(cls, base_names, effects=(), priors=None):
+        """The space of the named base parameters (declared in parameter_space) and effects;
+        ``priors`` {name: (lo, hi)} narrows a parameter's declared prior (``--free NAME=LO:HI``,
+        checked by :func:`analysis.parameter_space.parse_free`)."""
+        import dataclasses
         unknown = [n for n in base_names if n not in SPACE]
         if unknown:
             raise ValueError("not a movable parameter of the twin: %s (analysis/"
                              "parameter_space.py declares %s)" % (", ".join(unknown),
                                                                   ", ".join(SPACE)))
-        return cls(tuple(SPACE[n] for n in base_names), tuple(effects))
+        pr = dict(priors or {})
+        return cls(tuple(dataclasses.replace(SPACE[n], prior=tuple(pr[n])) if n in pr
+                         else SPACE[n] for n in base_names), tuple(effects))
 
     @property
     def base_names(self):

@@ -129,6 +129,7 @@ class LoopSettings:
     seed: int = 0                    # design seed [-]
     flights: bool = True             # impact observables from jar tracks
     extra_effects: tuple = ()        # optional catalog entries diagnosed too
+    free: tuple = ()                 # (name, lo, hi): apparatus parameters calibrated too
     n_jobs: int = 1                  # processes for the bootstrap draws (--workers) [-]
 
     def check(self):
@@ -431,11 +432,13 @@ class LoopState:
         return len(self.model.base_params())
 
 
-def loop_space(dataset, extra_effects=()):
+def loop_space(dataset, extra_effects=(), free=()):
     """The design space of a loop on ``dataset``: the base parameters of :data:`DEFAULT_BASE`
-    (the stroke left out when every condition states it) over their priors, the default DEM
-    catalog and the optional DEM entries asked for (an observation entry is no design input:
-    :class:`analysis.emulated_twin.EmulatedTwin` applies it to its predictions)."""
+    (the stroke left out when every condition states it) over their priors, then the
+    parameters ``free`` names ((name, lo, hi): ``--free``, an apparatus parameter or a
+    narrower prior of a base one), the default DEM catalog and the optional DEM entries asked
+    for (an observation entry is no design input: :class:`analysis.emulated_twin.EmulatedTwin`
+    applies it to its predictions)."""
     from analysis.history_matching import DesignSpace
     from analysis.run_configs import stated_amplitude_m
     from analysis.catalog import OPTIONAL_CANDIDATES
@@ -443,10 +446,11 @@ def loop_space(dataset, extra_effects=()):
     names = list(DEFAULT_BASE)
     if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
         names.remove("amplitude_m")
+    names += [n for n, _, _ in free if n not in names]
     opt = {c.name: c for c in OPTIONAL_CANDIDATES}
     effs = [c for c in CANDIDATES if c.kind == "dem"] + [opt[n] for n in extra_effects
                                                          if opt[n].kind == "dem"]
-    return DesignSpace.of(names, tuple(effs))
+    return DesignSpace.of(names, tuple(effs), priors={n: (lo, hi) for n, lo, hi in free})
 
 
 def read_stage(dataset, settings, *, base_config=None, track_cache=None, progress=True,
@@ -467,8 +471,8 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
                q.scale_source, " [cached]" if q.cached else "") for q in tracking.itertuples())))
         dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
     obs0, fl_ids, _ = dataset_observations(dataset, settings.flights)
-    space = loop_space(dataset, settings.extra_effects)
-    ref = reference_parameters()
+    space = loop_space(dataset, settings.extra_effects, settings.free)
+    ref = dict(apparatus_reference(base_config), **reference_parameters())
     ref = {p.name: float(np.clip(ref.get(p.name, np.mean(p.prior)), *p.prior))
            for p in space.base}
     model = EmulatedTwin(dataset.conditions, space, velocity_frame=dataset.velocity_frame,
@@ -480,6 +484,17 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
         model.held["amplitude_m"] = "stated by the dataset"
     return LoopState(dataset=dataset, settings=settings, base_config=base_config, obs0=obs0,
                      flight_ids=fl_ids, model=model, tracking=tracking, tracks=tracks)
+
+
+def apparatus_reference(base_config=None) -> dict:
+    """The reference value of each apparatus parameter: the runs' own (``--set``, the base
+    config) where given, else the run config's default (the 25 mL jar's); a parameter derived
+    from others (the jar's diameter and length from its volume) has none here and starts at
+    its prior's middle."""
+    from analysis.config import twin_config
+    from analysis.parameter_space import APPARATUS
+    cfg = twin_config.complete_config(dict(base_config or {}))
+    return {k: float(cfg[k]) for k in APPARATUS if cfg.get(k) is not None}
 
 
 def wave0_runs(state: LoopState) -> pd.DataFrame:
@@ -901,6 +916,34 @@ def run_settings(pairs, *, frame="lab", record_s=None):
     return out or None
 
 
+#: the optional effects that move an apparatus parameter (it cannot be freed beside them)
+EFFECT_MOVES = {"end_fillet": "jar_fillet_radius_m", "stroke_drift": "amplitude_m"}
+
+
+def free_parameters(specs, base_config=None, extra=()) -> tuple:
+    """(name, lo, hi) of each ``--free NAME[=LO:HI]`` (:func:`analysis.parameter_space.
+    parse_free`: a declared parameter, a range inside its prior); none without ``specs``.
+
+    Raises
+    ------
+    ValueError - an unknown name or bad range, a parameter also fixed by ``--set``, or one an
+        optional effect asked for moves too
+    """
+    from analysis.parameter_space import parse_free
+    if not specs:
+        return ()
+    out = parse_free(specs)
+    for name in out:
+        if name in (base_config or {}):
+            raise ValueError("--free %s and --set %s: a parameter is either calibrated or "
+                             "fixed" % (name, name))
+        for eff in extra:
+            if EFFECT_MOVES.get(eff) == name and name not in DEFAULT_BASE:
+                raise ValueError("--free %s and --with-effect %s both move %s: choose one"
+                                 % (name, eff, name))
+    return tuple((n, float(lo), float(hi)) for n, (lo, hi) in out.items())
+
+
 def optional_effects(names, base_config=None):
     """The optional catalog entries ``names`` (catalog.OPTIONAL_CANDIDATES), checked against
     the runs' jar: each must be able to act on it at its largest strength.
@@ -1235,7 +1278,7 @@ def check_options(a):
                          "local or serial")
 
 
-def settings_of(a, max_effects=None, extra=()) -> LoopSettings:
+def settings_of(a, max_effects=None, extra=(), free=()) -> LoopSettings:
     """The LoopSettings of the command's options (``--max-refits N``, the earlier form, asks
     for up to N reruns after the first: ``--confirm-rounds N + 1``)."""
     rounds = a.confirm_rounds if a.max_refits is None else a.max_refits + 1
@@ -1245,11 +1288,11 @@ def settings_of(a, max_effects=None, extra=()) -> LoopSettings:
                         focus_points=a.focus_points,
                         rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                         confirm_rounds=rounds, intervals=not a.no_intervals,
-                        seed=a.seed, extra_effects=tuple(extra),
+                        seed=a.seed, extra_effects=tuple(extra), free=tuple(free),
                         n_jobs=max(int(getattr(a, "workers", 1) or 1), 1))
 
 
-def dof_limits(ds, max_effects, extra=()):
+def dof_limits(ds, max_effects, extra=(), free=()):
     """(calibration dof, max effects) of a loop on ``ds``, before anything is planned.
 
     The calibration fits every base parameter of the design space (the stroke not when every
@@ -1264,7 +1307,7 @@ def dof_limits(ds, max_effects, extra=()):
         return None, max_effects
     obs, _, _ = dataset_observations(ds, True)
     n_obs = int(np.isfinite(pd.to_numeric(obs["value"], errors="coerce")).sum())
-    names = loop_space(ds, extra).base_names
+    names = loop_space(ds, extra, free).base_names
     yields = ["slope_pct_per_kj", "intercept_pct"] if yield_times_of(ds) else []
     dof = n_obs - len(names) - len(yields)
     if dof < 1:
@@ -1384,6 +1427,12 @@ def _main(argv=None):
     ap.add_argument("--v-rel-sd", type=float, default=None, metavar="F",
                     help="[-] measurement sd of v_mean assumed where the dataset states none, as a "
                     "fraction of v_mean (default 0.015; e.g. 0.01 for 1 %%)")
+    ap.add_argument("--free", action="append", default=[], metavar="NAME[=LO:HI]",
+                    help="an apparatus parameter calibrated beside the contact parameters and "
+                    "the stroke, over its declared prior or LO:HI inside it (repeatable): "
+                    "jar_inner_diameter_m, jar_inner_length_m, jar_volume_m3, "
+                    "jar_fillet_radius_m (analysis/parameter_space.py); a base parameter with "
+                    "LO:HI narrows its prior")
     ap.add_argument("--set", action="append", default=[], dest="settings", metavar="KEY=VALUE",
                     type=parse_key_value,
                     help="run-config key fixed in every twin run (repeatable): your rig's "
@@ -1417,18 +1466,19 @@ def _main(argv=None):
         check_out_dir(a.out, [a.dataset])
         base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
         extra = optional_effects(a.with_effect, base_config)
+        free = free_parameters(a.free, base_config, extra)
         ds = load_dataset(a.dataset)
         for line in ds.warnings:            # accepted, but outside what the twin is tested on
             print("analysis.loop: warning: %s" % line, file=sys.stderr)
         physics_table(ds.conditions)
         if a.v_rel_sd is not None:
             ds = with_assumed_v_sd(ds, a.v_rel_sd)
-        _, max_effects = dof_limits(ds, a.max_effects, extra)
+        _, max_effects = dof_limits(ds, a.max_effects, extra, free)
         if max_effects < a.max_effects:
             print("analysis.loop: note: at most %d effect(s) added (--max-effects %d): each "
                   "costs a degree of freedom and the dataset leaves %d beyond the calibration"
                   % (max_effects, a.max_effects, max_effects + 1), file=sys.stderr)
-        settings = settings_of(a, max_effects, extra).check()
+        settings = settings_of(a, max_effects, extra, free).check()
         twin = twin_of(a, base_config)
         if a.dry_run:
             print("\n".join(plan_lines(ds, settings, base_config, twin)))

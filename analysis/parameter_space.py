@@ -19,6 +19,7 @@ calibration's posterior mean) from here.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from yade_scripts.twin_config import PARAMETERS
@@ -77,6 +78,44 @@ CALIBRATED = {k: p.prior for k, p in SPACE.items() if p.base}
 APPARATUS = {k: p.prior for k, p in SPACE.items() if p.role == "apparatus"}
 #: every parameter a calibration may free
 PRIORS = {**CALIBRATED, **APPARATUS}
+
+
+def parse_free(specs):
+    """Calibrated parameters and bounds from ``--free`` strings ``NAME`` or ``NAME=LO:HI``.
+
+    A name must be one of :data:`PRIORS`; a given range must lie inside the declared prior
+    range (a calibration cannot claim a value outside the physical range). None or [] gives
+    :data:`CALIBRATED`.
+
+    Raises
+    ------
+    ValueError - unknown name, malformed or out-of-range bounds, a name given twice
+    """
+    if not specs:
+        return dict(CALIBRATED)
+    out = {}
+    for spec in specs:
+        name, _, rng = str(spec).partition("=")
+        name = name.strip()
+        if name not in PRIORS:
+            raise ValueError("--free %s: not a calibratable parameter (known: %s)"
+                             % (name, ", ".join(PRIORS)))
+        if name in out:
+            raise ValueError("--free %s given twice" % name)
+        lo, hi = PRIORS[name]
+        if rng:
+            try:
+                a, b = (float(x) for x in rng.split(":"))
+            except ValueError:
+                raise ValueError("--free %s: bounds must be LO:HI, got %r" % (name, rng))
+            if not (math.isfinite(a) and math.isfinite(b) and a < b):
+                raise ValueError("--free %s: need finite LO < HI, got %r" % (name, rng))
+            if a < lo or b > hi:
+                raise ValueError("--free %s: %g:%g leaves the declared range %g:%g"
+                                 % (name, a, b, lo, hi))
+            lo, hi = a, b
+        out[name] = (lo, hi)
+    return out
 
 
 def reference_parameters(calibration_dir=None) -> dict:

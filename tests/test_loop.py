@@ -601,3 +601,42 @@ def test_the_focus_waves_ridge_is_the_profile_of_the_base_parameters():
     assert list(on.index) == list(held.index)
     np.testing.assert_allclose(on["restitution"], 0.5 / (1 - k * held["arc_in"]), rtol=1e-4)
     np.testing.assert_allclose(on["amplitude_m"], 0.012, rtol=1e-4)
+
+
+def test_a_freed_apparatus_parameter_is_calibrated_with_the_contact_parameters(tmp_path):
+    """--free jar_fillet_radius_m: the fillet becomes a design input over its declared prior
+    (or LO:HI), starts at the runs' own jar, and is fitted with the base parameters; on FAKE
+    data made with a 9 mm fillet (the FAKE speed falls as (r - 5 mm) f^2 / d^2) its 95 % interval
+    covers 9 mm and excludes the default 5 mm. Bad --free forms are refused before any run."""
+    from analysis.hidden import make_hidden_dataset
+    ds_dir, _ = make_hidden_dataset(
+        "fil", {}, conditions=WIDE_CONDITIONS, replicates=1, seed=7, runner=run_fake_twin,
+        base_config={"jar_fillet_radius_m": 0.009}, runs_dir=tmp_path / "runs",
+        out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth", twin_v_rel_sd=0.004,
+        twin_f_col_sd_hz=0.3, progress=False, v_rel_sd=0.003, yield_times_min=())
+    free = loop.free_parameters(["jar_fillet_radius_m"])
+    assert free == (("jar_fillet_radius_m", 0.002, 0.0115),)
+    settings = loop.LoopSettings(points=14, waves=0, focus_points=3, null_draws=0,
+                                 max_effects=0, rerun=False, free=free)
+    ds = load_dataset(ds_dir)
+    state = loop.read_stage(ds, settings, track=False, log=lambda s: None)
+    assert "jar_fillet_radius_m" in state.model.space.base_names
+    assert state.model.theta_ref["jar_fillet_radius_m"] == pytest.approx(0.005)
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
+                    progress=False)
+    res = loop.run_loop(ds, settings, twin=twin, progress=False, log=lambda s: None)
+    row = res.parameters.set_index("name").loc["jar_fillet_radius_m"]
+    assert row["role"] == "base" and row["unit"] == "m"
+    assert row["profile_lo"] <= 0.009 <= row["profile_hi"]
+    assert row["profile_lo"] > 0.005
+    assert res.model_runs["jar_fillet_radius_m"].nunique() > 10
+    with pytest.raises(ValueError, match="not a calibratable"):
+        loop.free_parameters(["jar_colour"])
+    with pytest.raises(ValueError, match="leaves the declared range"):
+        loop.free_parameters(["jar_fillet_radius_m=0.001:0.02"])
+    with pytest.raises(ValueError, match="either calibrated or fixed"):
+        loop.free_parameters(["jar_fillet_radius_m"], {"jar_fillet_radius_m": 0.004})
+    with pytest.raises(ValueError, match="both move"):
+        loop.free_parameters(["jar_fillet_radius_m"], None, ("end_fillet",))
+    narrow = loop.loop_space(ds, (), loop.free_parameters(["restitution=0.2:0.5"]))
+    assert narrow.bounds()["restitution"] == (0.2, 0.5)
