@@ -130,17 +130,17 @@ EDEM_LAW_SET = --set rolling_model=constant_torque --set frame=jar
 apparatus: setup
 	$(VPY) -m analysis.studies.apparatus_screen
 	$(VPY) -m analysis.calibrate --dataset data/measurements/paper_dem_table3 \
-	  --out results/apparatus/identify_paper_dem --operator summary --v-rel-sd 0.01 \
+	  --out results/apparatus/identify_paper_dem --v-rel-sd 0.01 \
 	  --free amplitude_m --free jar_inner_diameter_m --free jar_fillet_radius_m \
 	  --free jar_volume_m3 $(PAPER_CONTACT_SET) $(EDEM_LAW_SET) \
-	  --n-initial 40 --n-refine 10 --rounds 2 --n-validation 4
+	  --points 40 --waves 2 --per-wave 10 --rerun-replicates 4
 	$(VPY) -m analysis.studies.apparatus_identification --cal results/apparatus/identify_paper_dem \
 	  --profile results/apparatus/paper_apparatus.json
 	$(VPY) -m analysis.calibrate --dataset data/measurements/paper_table3 \
 	  --out results/apparatus/calibrate_measured --v-rel-sd 0.01 \
 	  --base-profile results/apparatus/paper_apparatus.json \
 	  --free restitution --free static_friction --free rolling_friction --free amplitude_m \
-	  --free jar_fillet_radius_m --n-initial 40 --n-refine 10 --rounds 2 --n-validation 4
+	  --free jar_fillet_radius_m --points 40 --waves 2 --per-wave 10 --rerun-replicates 4
 	$(VPY) -m analysis.studies.apparatus_identification --cal results/apparatus/calibrate_measured \
 	  --profile results/apparatus/measured_apparatus.json
 	$(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --with-effect end_fillet \

@@ -129,7 +129,8 @@ class LoopSettings:
     seed: int = 0                    # design seed [-]
     flights: bool = True             # impact observables from jar tracks
     extra_effects: tuple = ()        # optional catalog entries diagnosed too
-    free: tuple = ()                 # (name, lo, hi): apparatus parameters calibrated too
+    base: tuple = DEFAULT_BASE       # the base parameters calibrated (over their priors)
+    free: tuple = ()                 # (name, lo, hi): parameters calibrated too (--free)
     n_jobs: int = 1                  # processes for the bootstrap draws (--workers) [-]
 
     def check(self):
@@ -432,9 +433,10 @@ class LoopState:
         return len(self.model.base_params())
 
 
-def loop_space(dataset, extra_effects=(), free=()):
-    """The design space of a loop on ``dataset``: the base parameters of :data:`DEFAULT_BASE`
-    (the stroke left out when every condition states it) over their priors, then the
+def loop_space(dataset, extra_effects=(), free=(), base=DEFAULT_BASE):
+    """The design space of a loop on ``dataset``: the base parameters ``base`` (default
+    :data:`DEFAULT_BASE`; the stroke left out when every condition states it) over their
+    priors, then the
     parameters ``free`` names ((name, lo, hi): ``--free``, an apparatus parameter or a
     narrower prior of a base one), the default DEM catalog and the optional DEM entries asked
     for (an observation entry is no design input: :class:`analysis.emulated_twin.EmulatedTwin`
@@ -443,10 +445,9 @@ def loop_space(dataset, extra_effects=(), free=()):
     from analysis.run_configs import stated_amplitude_m
     from analysis.catalog import OPTIONAL_CANDIDATES
     phys = physics_table(dataset.conditions)
-    names = list(DEFAULT_BASE)
-    if all(stated_amplitude_m(r) is not None for r in phys.to_dict("records")):
-        names.remove("amplitude_m")
-    names += [n for n, _, _ in free if n not in names]
+    stated = all(stated_amplitude_m(r) is not None for r in phys.to_dict("records"))
+    names = [n for n in base if not (stated and n == "amplitude_m")]
+    names += [n for n, _, _ in free if n not in names and not (stated and n == "amplitude_m")]
     opt = {c.name: c for c in OPTIONAL_CANDIDATES}
     effs = [c for c in CANDIDATES if c.kind == "dem"] + [opt[n] for n in extra_effects
                                                          if opt[n].kind == "dem"]
@@ -471,7 +472,7 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
                q.scale_source, " [cached]" if q.cached else "") for q in tracking.itertuples())))
         dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
     obs0, fl_ids, _ = dataset_observations(dataset, settings.flights)
-    space = loop_space(dataset, settings.extra_effects, settings.free)
+    space = loop_space(dataset, settings.extra_effects, settings.free, settings.base)
     ref = dict(apparatus_reference(base_config), **reference_parameters())
     ref = {p.name: float(np.clip(ref.get(p.name, np.mean(p.prior)), *p.prior))
            for p in space.base}
@@ -480,7 +481,8 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
                          theta_ref=ref, seed=settings.seed,
                          observation=[n for n in settings.extra_effects
                                       if candidates()[n].kind == "observation"])
-    if "amplitude_m" not in space.base_names:
+    asked = set(settings.base) | {n for n, _, _ in settings.free}
+    if "amplitude_m" in asked and "amplitude_m" not in space.base_names:
         model.held["amplitude_m"] = "stated by the dataset"
     return LoopState(dataset=dataset, settings=settings, base_config=base_config, obs0=obs0,
                      flight_ids=fl_ids, model=model, tracking=tracking, tracks=tracks)
@@ -774,8 +776,19 @@ def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | 
     results/runs, with the committed run table); ``base_config`` holds the run-config keys of
     every twin run (the frame, the rig's apparatus, ``record_s``)."""
     t0 = time.time()
-    s = (settings or LoopSettings()).check()
     twin = twin if twin is not None else TwinRuns(base_config=base_config, progress=progress)
+    state = run_stages(dataset, settings, twin=twin, base_config=base_config,
+                       track_cache=track_cache, progress=progress, log=log)
+    return result_of(state, new_runs=twin.new_runs, wall_s=time.time() - t0,
+                     failed=getattr(twin, "failed", None))
+
+
+def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None,
+               track_cache=None, progress=True, log=print) -> LoopState:
+    """The stages in order (read, build, calibrate, select, focus, confirm, intervals) on one
+    state, returned: what :func:`run_loop` reports, and what a calibration
+    (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
+    s = (settings or LoopSettings()).check()
     state = read_stage(dataset, s, base_config=base_config, track_cache=track_cache,
                        progress=progress, log=log)
     build_stage(state, twin, log)
@@ -786,8 +799,7 @@ def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | 
         confirm_stage(state, twin, log)
     if s.intervals:
         interval_stage(state)
-    return result_of(state, new_runs=twin.new_runs, wall_s=time.time() - t0,
-                     failed=getattr(twin, "failed", None))
+    return state
 
 
 def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:

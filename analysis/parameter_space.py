@@ -14,8 +14,7 @@ The effects' strengths are declared by each effect's file (``analysis/effects``,
 range and strength coordinate); :func:`effect_strengths` lists them beside these.
 
 Every other module reads :data:`CALIBRATED`, :data:`APPARATUS`, :data:`PRIORS` and the
-reference point :func:`reference_parameters` (the Table-3
-calibration's posterior mean) from here.
+reference point :data:`REFERENCE` (:func:`reference_parameters`) from here.
 """
 from __future__ import annotations
 
@@ -118,20 +117,17 @@ def parse_free(specs):
     return out
 
 
-def reference_parameters(calibration_dir=None) -> dict:
-    """theta_ref, the reference point of the base parameters: the Table-3 calibration's
-    posterior mean (restitution, static_friction, rolling_friction, amplitude_m; ``summary.json``
-    of :mod:`analysis.calibrate`, default results/calibration), rounded to 4 significant digits
-    (stable run ids)."""
-    import json
-    from pathlib import Path
+#: theta_ref, the reference point of every design (the base parameters of the replicated point
+#: of wave 0, the baseline of the staircase, the blind datasets' neighbourhood): the Table-3
+#: calibration of 2026-11 (its posterior mean, 4 significant digits). Declared here, not read
+#: from results/calibration, so that a new calibration does not move every design's run ids.
+REFERENCE = {"restitution": 0.3487, "static_friction": 0.4651, "rolling_friction": 0.2534,
+             "amplitude_m": 0.0127}
 
-    from analysis.config import CALIBRATION_DIR
-    p = Path(calibration_dir or CALIBRATION_DIR) / "summary.json"
-    if not p.exists():
-        raise FileNotFoundError("%s missing: run the calibration first (make calibrate)" % p)
-    params = json.loads(p.read_text())["params"]
-    return {k: float("%.4g" % v) for k, v in params.items()}
+
+def reference_parameters() -> dict:
+    """theta_ref (:data:`REFERENCE`), a copy."""
+    return dict(REFERENCE)
 
 
 def effect_strengths() -> dict:

@@ -99,7 +99,7 @@ def _stages():
     #         ctx -> the input it reads)
     return {
         "calibrate": (calibrate, lambda o, c: ["--fake", "--dataset", str(c["ds"]), "--out", o],
-                      [(calibrate, "load_measurements"), (calibrate, "calibrate")],
+                      [(calibrate, "load_dataset"), (calibrate, "calibrate")],
                       lambda c: c["ds"]),
         "kinetics": (kinetics, lambda o, c: ["--yields", str(c["yields"]), "--out", o],
                      [(yield_dataset, "load_yield_dataset"), (kinetics_cli, "fit_kinetics")],

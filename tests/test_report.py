@@ -26,9 +26,9 @@ def _calibration_folder(root, v_err=(1.25, -3.5)):
                   "f_col_err_pct": [0.08, 0.1], "v_err_paper_pct": [0.0, 0.47]}
                  ).to_csv(d / "table3_comparison.csv", index=False)
     (d / "summary.json").write_text(json.dumps({"dataset": "toy", "n_runs": 42,
-                                                "n_parameter_sets": 5}))
-    pd.DataFrame({"output": ["v_mean_m_s"], "rel_rmse_pct": [0.61]}).to_csv(
-        d / "emulator_loo.csv", index=False)
+                                                "new_runs": 5}))
+    pd.DataFrame({"stage": ["calibrated", "twin rerun"], "chi2_dof": [1.23, 1.87]}).to_csv(
+        d / "staircase.csv", index=False)
     (d / "parity.png").write_bytes(PNG)
     (d / "posterior_pairs.png").write_bytes(PNG)
     return d
@@ -43,6 +43,7 @@ def test_page_carries_the_numbers_of_the_csv(tmp_path):
     assert "+1.25" in page and "-3.50" in page and "2.602" in page
     # summary from the same numbers: mean |error| (1.25 + 3.5) / 2, max 3.5 > 3 %: goal not met
     assert "mean |error| 2.38 %, max 3.50 %" in page and "NOT met" in page
+    assert "calibrated 1.23, twin rerun 1.87" in page
     assert "Twin runs used: 42" in page
     assert "![parity](parity.png)" in page and "![posterior_pairs](posterior_pairs.png)" in page
     index = (tmp_path / "README.md").read_text()

@@ -69,7 +69,7 @@ def plot_pairs(samples, names, bounds=None, truth=None, axes=None, bins=30):
 
     Parameters
     ----------
-    samples : ndarray, shape (n, k)
+    samples : array_like (ndarray or DataFrame), shape (n, k)
     names : list of str, length k
     bounds : dict name -> (lo, hi), optional - prior box (axis limits)
     truth : dict name -> value, optional - marked in red
@@ -79,6 +79,7 @@ def plot_pairs(samples, names, bounds=None, truth=None, axes=None, bins=30):
     -------
     axes : ndarray, shape (k, k)
     """
+    samples = np.asarray(samples, float)
     import matplotlib.pyplot as plt
     k = len(names)
     if axes is None:

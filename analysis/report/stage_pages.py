@@ -289,12 +289,12 @@ def apparatus_identification_page(cal_dir, summary, base, params, corr, residual
     tw, tg = shape_twin, shape_target
     lines = ["# The apparatus identified: %s" % summary.get("dataset", ""), "",
              "Calibration folder `%s` (`python -m analysis.calibrate --free ...`), fixed in "
-             "every run: %s. %d parameter sets, %d twin runs (%d failed); the posterior of a "
-             "GP emulator of the twin sampled with emcee; then the real twin at the posterior "
-             "mean. Regenerate this page: `python -m analysis.studies.apparatus_identification "
-             "--cal %s`." % (cal_dir.name, ", ".join("%s %s" % kv for kv in base.items()) or
-                             "-", summary["n_parameter_sets"], summary["n_runs"],
-                             summary["n_failed_runs"], cal_dir), "",
+             "every run: %s. %d twin runs in the loop's emulator of the twin, built in waves "
+             "where the data are plausible; the posterior sampled on it with emcee; then the "
+             "real twin at the fitted point. Regenerate this page: `python -m "
+             "analysis.studies.apparatus_identification --cal %s`."
+             % (cal_dir.name, ", ".join("%s %s" % kv for kv in base.items()) or "-",
+                summary["n_runs"], cal_dir), "",
              "## Posterior", "",
              "| parameter | mean | sd | 95 % interval | prior range | interval / prior width |",
              "|---|---|---|---|---|---|"]

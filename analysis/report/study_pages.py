@@ -221,7 +221,7 @@ def page_calibration(f: StudyFolder):
                           "v_mean_twin_m_s", "v_err_pct", "f_col_measured_hz", "f_col_twin_hz",
                           "f_col_err_pct"])
     summ = f.json("summary.json", ["dataset", "n_runs"])
-    loo = f.csv("emulator_loo.csv", ["output", "rel_rmse_pct"], numeric=["rel_rmse_pct"])
+    stair = f.csv("staircase.csv", ["stage", "chi2_dof"], numeric=["chi2_dof"])
     figs = [f.png("parity.png"), f.png("posterior_pairs.png")]
     f.require()
     rows = []
@@ -262,15 +262,13 @@ def page_calibration(f: StudyFolder):
     if is_number(n_runs):
         lines.append(f"Twin runs used: {int(n_runs)} (goal <= {GOAL_CAL_RUNS}: "
                      f"{_met(int(n_runs) <= GOAL_CAL_RUNS)})"
-                     + (f", {summ['n_parameter_sets']} parameter sets" if
-                        "n_parameter_sets" in summ else "")
-                     + (f", {summ['n_failed_runs']} failed" if "n_failed_runs" in summ else "")
-                     + ".")
+                     + (f", {int(summ['new_runs'])} of them new in this calibration"
+                        if is_number(summ.get("new_runs")) else "") + ".")
     if isinstance(summ.get("motion_modes"), dict):
         lines.append("Motion modes of the design runs: " + ", ".join(
             f"{k} {v}" for k, v in summ["motion_modes"].items()) + ".")
-    lines.append("Emulator leave-one-out relative RMSE: " + ", ".join(
-        f"{r.output} {r.rel_rmse_pct:.2f} %" for r in loo.itertuples(index=False)) + ".")
+    lines.append("chi2/dof of the data on the emulator and on the twin: " + ", ".join(
+        f"{r.stage} {r.chi2_dof:.2f}" for r in stair.itertuples(index=False)) + ".")
     out += [f"## Against Table 3 (dataset `{summ['dataset']}`), twin at the posterior mean", "",
             md_table(hdr, crow), "", " ".join(lines), "", "## Figures", ""]
     out += [x for fig in figs for x in (fig, "")]
@@ -619,9 +617,11 @@ def page_twin_tables(f: StudyFolder):
 STUDIES = [
     Study("calibration", "Calibration of the twin on Table 3",
           "Which contact and apparatus parameters (C_R, SF, RF, stroke amplitude A) make the twin "
-          "reproduce the paper's measured v_mean and f_col (Table 3)? A Latin-hypercube design of "
-          "twin runs, a Gaussian-process emulator carrying the twin's replicate noise, emcee on "
-          "the emulator, then twin runs at the posterior mean (`analysis.calibrate`).",
+          "reproduce the paper's measured v_mean and f_col (Table 3)? The loop's emulator of the "
+          "twin (Gaussian processes over the parameters and the effects' strengths, built in "
+          "waves of twin runs where the data are plausible), the parameters fitted on it with "
+          "its own sd, emcee on the same likelihood, then twin runs at the fitted point "
+          "(`analysis.calibrate`).",
           "`python -m analysis.calibrate` (see README for the budget used)", page_calibration),
     Study("surrogate", "Surrogates (f, BVR) -> (v_mean, f_col)",
           "Can fast surrogates replace the twin? Linear regression, random forest and a Gaussian "
