@@ -376,6 +376,8 @@ def main(argv=None):
                                         rerun_replicates=args.rerun_replicates,
                                         confirm_rounds=1, seed=args.seed,
                                         n_jobs=args.workers).check()
+        from analysis.loop import dof_limits
+        dof_limits(ds, 0, (), settings.free, settings.base)     # too few data: refused here
         from analysis.twin_runs import TwinRuns
         twin = TwinRuns(workers=args.workers, base_config=base or None)
         if args.fake:

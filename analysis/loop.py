@@ -1304,7 +1304,7 @@ def settings_of(a, max_effects=None, extra=(), free=()) -> LoopSettings:
                         n_jobs=max(int(getattr(a, "workers", 1) or 1), 1))
 
 
-def dof_limits(ds, max_effects, extra=(), free=()):
+def dof_limits(ds, max_effects, extra=(), free=(), base=DEFAULT_BASE):
     """(calibration dof, max effects) of a loop on ``ds``, before anything is planned.
 
     The calibration fits every base parameter of the design space (the stroke not when every
@@ -1319,7 +1319,7 @@ def dof_limits(ds, max_effects, extra=(), free=()):
         return None, max_effects
     obs, _, _ = dataset_observations(ds, True)
     n_obs = int(np.isfinite(pd.to_numeric(obs["value"], errors="coerce")).sum())
-    names = loop_space(ds, extra, free).base_names
+    names = loop_space(ds, extra, free, base).base_names
     yields = ["slope_pct_per_kj", "intercept_pct"] if yield_times_of(ds) else []
     dof = n_obs - len(names) - len(yields)
     if dof < 1:

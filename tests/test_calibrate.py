@@ -162,3 +162,18 @@ def test_identification_page_and_profile_from_a_calibration(tmp_path, capsys):
     assert cal.main(["--fake", "--out", str(tmp_path / "c2"), "--base-profile",
                      str(base_prof)]) == 2
     assert "config" in capsys.readouterr().err
+
+
+def test_cli_refuses_a_dataset_too_small_for_the_parameters(tmp_path, capsys):
+    """One condition (v_mean and f_col) for four parameters: one clear error before any run,
+    naming what to add; nothing written."""
+    import shutil
+    d = tmp_path / "one"
+    shutil.copytree(PAPER_TABLE3_DIR, d)
+    for f in ("conditions.csv", "summary.csv"):
+        lines = (d / f).read_text().splitlines()
+        (d / f).write_text("\n".join(lines[:2]) + "\n")
+    assert cal.main(["--fake", "--dataset", str(d), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "degrees of freedom" in err and "more conditions" in err
+    assert not (tmp_path / "out").exists()
