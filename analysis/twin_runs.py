@@ -122,23 +122,39 @@ class TwinRuns:
         self.failed = pd.DataFrame(columns=["run_id", "error"])
         self.table = (pd.DataFrame(columns=observable_columns()) if runner is not None
                       else committed_runs(run_table))
+        self._near_index = None
         self.new_runs = 0
 
     def _ids(self, runs):
         from analysis.sweep import prepare_configs
-        return prepare_configs(list(runs["config"]))[1]
+        return prepare_configs(list(runs["config"]))
 
-    def _split(self, ids):
+    def _split(self, configs, ids):
+        """(cached, committed, alias): which runs are cached here, which are in the committed
+        table - exactly, or as a near run (:func:`near_run`: alias maps the id asked for to
+        the committed id)."""
         from analysis.sweep import failed_path
         cached = np.array([(self.runs_dir / i / "meta.json").is_file()
                            or failed_path(self.runs_dir, i).is_file() for i in ids], bool)
         committed = np.array([i in self.table.index for i in ids], bool) & ~cached
-        return cached, committed
+        alias = {}
+        for k, (cfg, rid) in enumerate(zip(configs, ids)):
+            if not (cached[k] or committed[k]):
+                hit = self._near(cfg)
+                if hit is not None:
+                    alias[rid] = hit
+                    committed[k] = True
+        return cached, committed, alias
+
+    def _near(self, config):
+        if self._near_index is None:
+            self._near_index = near_index(self.table)
+        return near_run(config, self._near_index)
 
     def plan(self, runs) -> RunPlan:
         """The cost of ``runs`` (nothing runs)."""
-        ids = self._ids(runs)
-        cached, committed = self._split(ids)
+        configs, ids = self._ids(runs)
+        cached, committed, _ = self._split(configs, ids)
         uniq_new = len({i for i, c, t in zip(ids, cached, committed) if not (c or t)})
         per = run_wall_s(self.base_config, self.runs_dir)
         return RunPlan(len(ids), int(cached.sum()), int(committed.sum()), uniq_new,
@@ -156,9 +172,14 @@ class TwinRuns:
         RuntimeError when more runs fail than that share (or the sweep was interrupted)."""
         from analysis.sweep import run_sweep
         out = runs.reset_index(drop=True).copy()
-        ids = self._ids(out)
+        configs, ids = self._ids(out)
+        cached, committed, alias = self._split(configs, ids)
+        if alias:
+            self.log("%d run(s) asked for are committed runs within a relative %g of every "
+                     "value (a fitted point's last digits differ between machines): read "
+                     "from the run table" % (len(alias), NEAR_REL_TOL))
+        ids = [alias.get(i, i) for i in ids]
         out["run_id"] = ids
-        cached, committed = self._split(ids)
         new = sorted({i for i, c, t in zip(ids, cached, committed) if not (c or t)})
         if self.budget_runs is not None and self.new_runs + len(new) > self.budget_runs:
             raise BudgetError(
@@ -211,6 +232,59 @@ class TwinRuns:
                          list(errs.items())[:3]) + (" ..." if len(errs) > 3 else "")))
             out = out[~out["run_id"].isin(errs)].reset_index(drop=True)
         return out
+
+
+#: a run asked for is a committed run when their configs agree in every key and every number to
+#: this relative tolerance: a focus wave's points and a rerun's point come from fits whose last
+#: digits differ between machines (BLAS), and 1e-4 of a parameter is far below what a twin run
+#: can tell (its chaos alone moves v_mean by about 1 %)
+NEAR_REL_TOL = 1e-4
+
+
+def _flat(config, prefix=""):
+    """{dotted key: value} of a config, nested dicts (the effects) flattened."""
+    out = {}
+    for k, v in config.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, prefix + k + "."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def _split_numbers(config):
+    """(the config's discrete part as a key, {dotted key: float} of its real numbers)."""
+    flat = _flat(config)
+    nums = {k: float(v) for k, v in flat.items() if isinstance(v, float)}
+    rest = json.dumps({k: v for k, v in flat.items() if k not in nums}, sort_keys=True)
+    return rest + "|" + ",".join(sorted(nums)), nums
+
+
+def near_index(table: pd.DataFrame) -> dict:
+    """{discrete key: [(run_id, numbers)]} of a committed run table's configs."""
+    out = {}
+    if "config" not in table.columns:
+        return out
+    for rid, cfg in table["config"].dropna().items():
+        key, nums = _split_numbers(json.loads(cfg))
+        out.setdefault(key, []).append((str(rid), nums))
+    return out
+
+
+def near_run(config, index, rel_tol=NEAR_REL_TOL):
+    """The id of the committed run (:func:`near_index`) whose complete config equals
+    ``config``'s in every discrete value and within ``rel_tol`` in every number; None when
+    there is none."""
+    from analysis.config import twin_config
+    try:
+        key, nums = _split_numbers(twin_config.complete_config(dict(config)))
+    except twin_config.ConfigError:
+        return None
+    for rid, other in index.get(key, ()):
+        if all(abs(v - other[k]) <= rel_tol * max(abs(v), abs(other[k]), 1e-300)
+               for k, v in nums.items()):
+            return rid
+    return None
 
 
 def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
