@@ -144,14 +144,15 @@ def test_identification_page_and_profile_from_a_calibration(tmp_path, capsys):
                      "--points", "12", "--waves", "0", "--focus-points", "0",
                      "--rerun-replicates", "2", "--steps", "150", "--workers", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["base_config"] == {"rolling_friction": 0.3, "static_friction": 0.5}
+    assert summary["base_config"] == {"rolling_friction": 0.3, "static_friction": 0.5,
+                                      "frame": "auto"}
     assert summary["bounds"]["amplitude_m"] == list(cal.APPARATUS["amplitude_m"])
     prof = tmp_path / "profile.json"
     assert ai.main(["--cal", str(out), "--profile", str(prof)]) == 0
     p = json.loads(prof.read_text())
     assert set(p["free"]) == {"amplitude_m", "restitution"}
     assert set(p["config"]) == {"amplitude_m", "restitution", "rolling_friction",
-                                "static_friction"}
+                                "static_friction", "frame"}
     assert p["config"]["rolling_friction"] == 0.3
     lo, hi = cal.APPARATUS["amplitude_m"]
     assert lo <= p["config"]["amplitude_m"] <= hi
@@ -177,3 +178,23 @@ def test_cli_refuses_a_dataset_too_small_for_the_parameters(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "degrees of freedom" in err and "more conditions" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_calibration_asks_for_the_loops_runs():
+    """One model: on the same dataset the calibration's wave 0 (its design, seeds and run
+    configs: the frame included) is the loop's, run id for run id - so the runs the loop
+    committed serve the calibration."""
+    from analysis import loop
+    from analysis.measurements import load_dataset
+    from analysis.twin_runs import TwinRuns
+    ds = load_dataset(PAPER_TABLE3_DIR)
+    lbase = loop.run_settings([], frame="auto")
+    cbase = cal.base_config_of(None, [], cal.CALIBRATED)
+    assert lbase == cbase
+    ids = []
+    for settings, base in ((loop.LoopSettings(), lbase), (cal.calibration_settings(), cbase)):
+        state = loop.read_stage(ds, settings, base_config=base, track=False,
+                                log=lambda m: None)
+        runs = loop.wave0_runs(state)
+        ids.append(TwinRuns(base_config=base, progress=False)._ids(runs)[1])
+    assert ids[0] == ids[1] and len(ids[0]) == (24 + 3) * 8
