@@ -269,7 +269,7 @@ def page_calibration(f: StudyFolder):
             f"{k} {v}" for k, v in summ["motion_modes"].items()) + ".")
     lines.append("chi2/dof of the data on the emulator and on the twin: " + ", ".join(
         f"{r.stage} {r.chi2_dof:.2f}" for r in stair.itertuples(index=False)) + ".")
-    out += [f"## Against Table 3 (dataset `{summ['dataset']}`), twin at the posterior mean", "",
+    out += [f"## Against Table 3 (dataset `{summ['dataset']}`), twin rerun at the fitted point", "",
             md_table(hdr, crow), "", " ".join(lines), "", "## Figures", ""]
     out += [x for fig in figs for x in (fig, "")]
     head = (f"v_mean mean |err| {mean_v:.2f} %, max {max_v:.2f} % vs Table 3; "
