@@ -312,15 +312,22 @@ def test_posterior_cloud_follows_the_fit_and_stays_in_the_box():
     assert posterior_cloud(space, centre, cov, 0, seed=0).empty
 
 
-def test_posterior_cloud_spreads_an_effect_over_its_whole_range():
-    """A focus wave with an effect's strength spread: the strength stratified over its range
-    (one point in each of n equal bins, far from the fit's own Gaussian), the base parameters
-    still drawn from the fit's Gaussian, an unknown spread input refused."""
+def _effect_centre():
+    """The design space, its first effect input, that input's range and a fit's centre with
+    the effect at 30 % of its range."""
     space = _space()
     e0 = space.effect_names[0]
     lo, hi = space.bounds()[e0]
     centre = {"restitution": 0.40, "amplitude_m": 0.0130, "static_friction": 0.5,
               "rolling_friction": 0.3, e0: 0.3 * hi}
+    return space, e0, lo, hi, centre
+
+
+def test_posterior_cloud_spreads_an_effect_over_its_whole_range():
+    """A focus wave with an effect's strength spread: the strength stratified over its range
+    (one point in each of n equal bins, far from the fit's own Gaussian), the base parameters
+    still drawn from the fit's Gaussian, an unknown spread input refused."""
+    space, e0, lo, hi, centre = _effect_centre()
     names = ["restitution", e0]
     sd = np.array([0.01, 0.01 * hi])
     cov = pd.DataFrame(np.diag(sd ** 2), index=names, columns=names)
@@ -340,11 +347,7 @@ def test_posterior_cloud_follows_a_ridge_with_the_conditional_spread():
     """A focus wave along a ridge: with a Gaussian posterior the ridge of the base parameters
     at a held strength is the conditional mean, and the spread about it the conditional sd
     (here 0.6 of the marginal for rho = -0.8) - both known; the strength stays stratified."""
-    space = _space()
-    e0 = space.effect_names[0]
-    lo, hi = space.bounds()[e0]
-    centre = {"restitution": 0.40, "amplitude_m": 0.0130, "static_friction": 0.5,
-              "rolling_friction": 0.3, e0: 0.3 * hi}
+    space, e0, lo, hi, centre = _effect_centre()
     names = ["restitution", e0]
     sd = np.array([0.01, 0.2 * hi])
     rho = -0.8
