@@ -109,7 +109,10 @@ def test_blind_case_generators_draw_what_they_say():
         tuple(sorted(p)) for p in combinations(owd.HIDDEN_EFFECTS, 2)}
     assert len({seed for _, seed, _ in list(one.values()) + list(two.values())}) == 14
     e = np.array([owd.posterior_draw(k)["restitution"] for k in range(40)])
-    assert e.std() > 0.04            # the posterior's sd is 0.07: drawn over it, not clipped
+    import pandas as pd
+    from analysis.config import CALIBRATION_DIR
+    sd = pd.read_csv(CALIBRATION_DIR / "posterior_samples.csv")["restitution"].std()
+    assert e.std() > 0.6 * sd        # drawn over the posterior, not clipped to its mean
 
 
 def test_truth_observations_are_the_twins_own_values():
