@@ -446,8 +446,8 @@ def loop_space(dataset, extra_effects=(), free=(), base=DEFAULT_BASE):
     from analysis.catalog import OPTIONAL_CANDIDATES
     phys = physics_table(dataset.conditions)
     stated = all(stated_amplitude_m(r) is not None for r in phys.to_dict("records"))
-    names = [n for n in base if not (stated and n == "amplitude_m")]
-    names += [n for n, _, _ in free if n not in names and not (stated and n == "amplitude_m")]
+    names = [n for n in dict.fromkeys(list(base) + [f[0] for f in free])
+             if not (stated and n == "amplitude_m")]
     opt = {c.name: c for c in OPTIONAL_CANDIDATES}
     effs = [c for c in CANDIDATES if c.kind == "dem"] + [opt[n] for n in extra_effects
                                                          if opt[n].kind == "dem"]
@@ -617,6 +617,9 @@ def ridge_of(state: LoopState, names: dict):
 
         def pred(theta, effects=None):
             return m.predict(theta, dict(effects or {}, **eff))
+        if hasattr(m, "prefetch"):         # the emulator's batch of a Jacobian's points
+            pred.prefetch = lambda pairs: m.prefetch([(t, dict(e or {}, **eff))
+                                                      for t, e in pairs])
         starts = [BaseParameter(p.name, float(np.clip(start.get(p.name, p.value), p.lower,
                                                       p.upper)), p.lower, p.upper) for p in bp]
         _, fit = calibrate_base(pred, obs, starts)
