@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.linalg import solve_triangular
 import pandas as pd
 
 from analysis.atomic_dir import OutputError, check_out_dir, output_dir
@@ -128,12 +129,20 @@ class Posterior:
         self.keys = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
         self.y = obs["value"].to_numpy(float)
         self.var_data = obs["sd"].to_numpy(float) ** 2
+        self._idx = model.keys.get_indexer(self.keys)
+        if np.any(self._idx < 0):
+            raise ValueError("the emulator has no observable %r"
+                             % (self.keys[int(np.argmin(self._idx))],))
 
     def one(self, theta: dict) -> float:
+        """log L: Gaussian with the covariance diag(sd^2) + the emulator's own at ``theta``
+        (its errors correlated across conditions), as every fit of the loop scores it."""
         mu = self.model.predict(theta, {}).reindex(self.keys).to_numpy(float)
-        se = self.model.model_se(theta, {}).reindex(self.keys).fillna(0.0).to_numpy(float)
-        var = self.var_data + se ** 2
-        return float(-0.5 * np.sum((self.y - mu) ** 2 / var + np.log(var)))
+        S = self.model.model_cov(theta, {})[np.ix_(self._idx, self._idx)]
+        S[np.diag_indices_from(S)] += self.var_data
+        L = np.linalg.cholesky(S)
+        r = solve_triangular(L, self.y - mu, lower=True, check_finite=False)
+        return float(-0.5 * (r @ r) - np.sum(np.log(np.diag(L))))
 
     def __call__(self, x):
         x = np.atleast_2d(x)

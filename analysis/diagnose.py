@@ -21,6 +21,9 @@ Either a :class:`analysis.measurements.Dataset` (its summary observables, plus y
 observables ``'yield_pct@<t>min'``), or a DataFrame with columns condition_id, observable, value,
 sd (e.g. :func:`analysis.measurements.measurement_table`). Each residual's uncertainty is
 ``sigma = sqrt(sd**2 + model_se**2)`` and residuals are whitened by it (the "whitened metric").
+A model whose ``model_se`` callable carries ``.cov`` (an emulator's: its errors at one point
+move together across conditions) is scored with the full covariance ``diag(sd**2) + K``:
+residuals whitened by its Cholesky factor, -2 log L = chi2 + log det (Kennedy & O'Hagan 2001).
 :func:`dataset_observations` builds that table from a dataset, with the impact observables of
 its jar tracks (:mod:`analysis.flights`); :func:`with_run_sd` floors their sd at one twin run's
 scatter.
@@ -89,6 +92,7 @@ import numpy as np
 import pandas as pd
 
 from scipy import optimize, stats
+from scipy.linalg import solve_triangular
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
                                    Dataset, measurement_table, yield_table)
@@ -167,9 +171,13 @@ class FitResult:
     chi2 : float;  dof : int (n - k)
     prediction : Series, model mean per key
     residuals : Series, z = (model - measured) / sigma per key
-    jac : DataFrame, shape (n, k), d(prediction / sigma) / d(param) at the solution
+    jac : DataFrame, shape (n, k), d(whitened prediction) / d(param) at the solution
     at_bound : list of parameter names that ended on a bound
     sigma : ndarray or None, the sigma per key the fit was scored with
+    chol : ndarray (n, n) or None, the lower Cholesky factor of the covariance the fit was
+        scored with when the model's errors correlate between observations (then chi2 is
+        the Mahalanobis distance |chol^-1 (measured - model)|^2, not the sum of residuals^2);
+        None: the covariance is diag(sigma^2)
     penalty : float, sum log(sigma^2 / sd^2) at the optimum when sigma depends on the
         parameters (a callable model_se) or the strength (``effect_se``), else 0 (sd the data's
         own, the same reference in every fit on these observations); ``objective`` = chi2 + penalty (-2 log likelihood up
@@ -187,6 +195,21 @@ class FitResult:
     at_bound: list
     sigma: np.ndarray | None = None
     penalty: float = 0.0
+    chol: np.ndarray | None = None
+
+    def whiten(self, v):
+        """A pattern in units of sigma per key (a z-vector, or columns of them) in the metric
+        the fit was scored in: chol^-1 (sigma v); v itself without a chol."""
+        v = np.asarray(v, float)
+        if self.chol is None:
+            return v
+        s = self.sigma if v.ndim == 1 else self.sigma[:, None]
+        return solve_triangular(self.chol, s * v, lower=True, check_finite=False)
+
+    @property
+    def whitened(self) -> np.ndarray:
+        """The whitened residual, measured - model, in the metric of the fit (|.|^2 = chi2)."""
+        return self.whiten(-self.residuals.to_numpy(float))
 
     @property
     def objective(self) -> float:
@@ -388,6 +411,9 @@ class Problem:
         # a callable model_se(theta, effects) -> Series: the model's uncertainty depends on
         # where it is asked (an emulator's), and every fit's likelihood carries it there
         self._se_fn = model_se if callable(model_se) else None
+        # ... and with .cov, how its errors at one point correlate between the observations
+        self._cov_fn = getattr(self._se_fn, "cov", None)
+        self._chols = {}
         if self._se_fn is not None:
             model_se = self._se_fn({p.name: p.value for p in self.base}, {})
         if model_se is None:
@@ -487,7 +513,55 @@ class Problem:
         common to every fit on these observations; 0 when sigma is constant."""
         if not self.varying_sigma:
             return 0.0
-        return float(np.sum(2.0 * np.log(self.sigma_for(effects, theta) / self._sigma_ref)))
+        return float(np.sum(2.0 * np.log(self._scale_diag(effects, theta) / self._sigma_ref)))
+
+    def chol(self, effects, theta=None):
+        """The lower Cholesky factor of the covariance diag(sd^2 + effect_se^2) + K at these
+        strengths and base parameters, K the model's own covariance (its ``.cov``); None when
+        the model states none (the covariance is diag(sigma^2))."""
+        if self._cov_fn is None or theta is None:
+            return None
+        eff = dict(self.fixed)
+        eff.update(effects or {})
+        key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
+        if key not in self._chols:
+            if len(self._chols) >= 4096:
+                self._chols.clear()
+            K, index = self._cov_fn(dict(theta), eff)
+            idx = (self._indexer if index is self._index_seen
+                   else pd.Index(index).get_indexer(self.keys))
+            if np.any(idx < 0):
+                raise ValueError("model_se.cov returned no value for %r"
+                                 % (self.keys[int(np.argmin(idx))],))
+            S = np.asarray(K, float)[np.ix_(idx, idx)]
+            if not np.all(np.isfinite(S)):
+                raise ValueError("model_se.cov returned a non-finite value")
+            sig = self.sigma_for(effects, theta)
+            S[np.diag_indices_from(S)] = sig ** 2
+            try:
+                L = np.linalg.cholesky(S)
+            except np.linalg.LinAlgError:        # rounding: drop what is not positive
+                w, U = np.linalg.eigh(S)
+                L = np.linalg.cholesky((U * np.maximum(w, 1e-12 * sig.min() ** 2)) @ U.T)
+            self._chols[key] = L
+        return self._chols[key]
+
+    def white(self, v, effects, theta=None):
+        """measured-minus-model vectors (or the columns of an array) whitened at these
+        strengths and base parameters: chol^-1 v, or v / sigma without a covariance."""
+        L = self.chol(effects, theta)
+        v = np.asarray(v, float)
+        if L is None:
+            s = self.sigma_for(effects, theta)
+            return v / (s if v.ndim == 1 else s[:, None])
+        return solve_triangular(L, v, lower=True, check_finite=False)
+
+    def _scale_diag(self, effects, theta=None):
+        """Per key, the factor whose logs sum to half the log-determinant: sigma, or the
+        Cholesky factor's diagonal (each >= sd: a covariance added to diag(sd^2) only
+        raises the conditional variances)."""
+        L = self.chol(effects, theta)
+        return self.sigma_for(effects, theta) if L is None else np.diag(L)
 
     def sigma_for(self, effects, theta=None):
         """sigma with the model's extra uncertainty at these effect strengths (``effect_se``,
@@ -554,13 +628,13 @@ class Problem:
 
         def whitened(u):
             theta, eff = unpack(u)
-            return (self.y - self.mu(theta, eff)) / self.sigma_for(eff, theta)
+            return self.white(self.y - self.mu(theta, eff), eff, theta)
 
         def fun(u):
             r = whitened(u)
             if not varying:
                 return r
-            pen = 2.0 * np.log(self.sigma_for(unpack(u)[1], unpack(u)[0]) / sigma_0)
+            pen = 2.0 * np.log(self._scale_diag(unpack(u)[1], unpack(u)[0]) / sigma_0)
             return np.concatenate([r, np.sqrt(np.maximum(pen, 0.0))])
 
         def fd_jac(f, u):
@@ -589,7 +663,7 @@ class Problem:
         mu = self.mu(theta, eff)
         sigma = self.sigma_for(eff, theta)
         penalty = self.penalty(eff, theta) if varying else 0.0
-        Ju = -fd_jac(whitened, u)          # d(mu / sigma) / du
+        Ju = -fd_jac(whitened, u)          # d(whitened mu) / du
         Jx = Ju / span                     # per physical unit
         cov = np.linalg.pinv(Jx.T @ Jx)
         x = lo + span * u
@@ -599,23 +673,25 @@ class Problem:
         at_bound = [nm for nm, ui in zip(names, u) if ui <= 1e-9 or ui >= 1 - 1e-9]
         return FitResult(params=params, stderr=stderr,
                          cov=pd.DataFrame(cov, index=names, columns=names),
-                         chi2=float(np.sum(z ** 2)), dof=self.n - len(names),
+                         chi2=float(np.sum(whitened(u) ** 2)), dof=self.n - len(names),
                          prediction=pd.Series(mu, index=self.keys),
                          residuals=pd.Series(z, index=self.keys),
                          jac=pd.DataFrame(Jx, index=self.keys, columns=names), at_bound=at_bound,
-                         sigma=sigma, penalty=penalty)
+                         sigma=sigma, penalty=penalty, chol=self.chol(eff, theta))
 
     def stage(self, theta, eff=None) -> FitResult:
         """Model at fixed parameters (no fit): a FitResult with dof = n."""
         mu = self.mu(theta, eff or {})
         sig = self.sigma_for(eff or {}, theta)
         z = (mu - self.y) / sig
+        w = self.white(self.y - mu, eff or {}, theta)
         return FitResult(params=dict(theta), stderr={}, cov=pd.DataFrame(),
-                         chi2=float(np.sum(z ** 2)), dof=self.n,
+                         chi2=float(np.sum(w ** 2)), dof=self.n,
                          prediction=pd.Series(mu, index=self.keys),
                          residuals=pd.Series(z, index=self.keys), jac=pd.DataFrame(),
                          at_bound=[], sigma=sig,
-                         penalty=self.penalty(eff or {}, theta) if self.varying_sigma else 0.0)
+                         penalty=self.penalty(eff or {}, theta) if self.varying_sigma else 0.0,
+                         chol=self.chol(eff or {}, theta))
 
 
 def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
@@ -634,12 +710,13 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
     if not len(grid):
         return []
     J = np.zeros((prob.n, 0)) if J is None else np.asarray(J, float)
-    s0 = prob.sigma_for({}, theta)
+    L0 = prob.chol({}, theta)
+    raw = J * prob.sigma_for({}, theta)[:, None] if L0 is None else L0 @ J
     chi2 = []
     for g in grid:
-        sg = prob.sigma_for({name: g}, theta)   # J was whitened by s0: rescale its rows
-        r = (prob.mu(theta, {name: g}) - prob.y) / sg
-        chi2.append(float(np.sum(_project_out(J * (s0 / sg)[:, None], r) ** 2))
+        Jg = prob.white(raw, {name: g}, theta)   # J was whitened at null: whiten it at g
+        r = prob.white(prob.mu(theta, {name: g}) - prob.y, {name: g}, theta)
+        chi2.append(float(np.sum(_project_out(Jg, r) ** 2))
                     + prob.penalty({name: g}, theta))
     chi2 = np.array(chi2)
     step = (e.upper - e.lower) / max(n_scan - 1, 1)
@@ -732,7 +809,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     baseline = prob.stage(theta0)
     cal = prob.fit(theta0)
     theta_c = {k: cal.params[k] for k in theta0}
-    r = -cal.residuals.to_numpy()            # (measured - model) / sigma
+    r = cal.whitened                         # measured - model, whitened
     J = cal.jac.to_numpy()
     n, p = prob.n, len(prob.base)
     K = len(prob.effects)
@@ -747,10 +824,11 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         travel = e.far - e.null
         h = effect_step_frac * travel
         g = (prob.mu(theta_c, {name: e.null + h}) - prob.mu(theta_c, {name: e.null})) / h
-        gw = g / prob.sigma
+        gw = prob.white(g, {}, theta_c)
         gp = _project_out(J, gw)
         sigs[name] = gp
-        vfar = (prob.mu(theta_c, {name: e.far}) - prob.mu(theta_c, {name: e.null})) / prob.sigma
+        vfar = prob.white(prob.mu(theta_c, {name: e.far}) - prob.mu(theta_c, {name: e.null}),
+                          {}, theta_c)
         vp = _project_out(J, vfar)
         fp2 = float(vp @ vp)
         footprint = math.sqrt(max(fp2 - proj_noise, 0.0))
@@ -910,7 +988,7 @@ def residual_structure(fit: FitResult, conditions: pd.DataFrame | None,
     """
     z = fit.residuals
     keys = z.index
-    zv = z.to_numpy().astype(float)
+    zv = -fit.whitened                 # model - measured, in the fit's metric
     J = fit.jac.to_numpy() if fit.jac.size else np.zeros((len(zv), 0))
     obs = keys.get_level_values(1)
     cids = keys.get_level_values(0)
@@ -939,7 +1017,8 @@ def residual_structure(fit: FitResult, conditions: pd.DataFrame | None,
         e = np.zeros(len(zv))
         e[i] = 1.0
         descs.append(("outlier", base_obs[i], cids[i], e))
-    descs = [(k, o, c_, np.nan_to_num(d)) for k, o, c_, d in descs]
+    # each shape is a pattern in units of sigma per key: in the fit's metric like zv and J
+    descs = [(k, o, c_, fit.whiten(np.nan_to_num(d))) for k, o, c_, d in descs]
     testable = []
     for k, o, c_, d in descs:
         dp = _project_out(J, d)
@@ -1104,6 +1183,9 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
 
         def se_fn(theta, effects=None):
             return model_se(dict(theta, **{name: float(x)}), effects)
+        if getattr(model_se, "cov", None) is not None:
+            se_fn.cov = lambda theta, effects=None: model_se.cov(
+                dict(theta, **{name: float(x)}), effects)
         ms = se_fn if callable(model_se) else model_se
         starts = [BaseParameter(q.name, float(np.clip(start[q.name], q.lower, q.upper)),
                                 q.lower, q.upper) for q in others]

@@ -245,9 +245,10 @@ class EmulatedTwin:
                 out[o] = Prediction(m[:, 0].reshape(n_p, n_c), z[:, 0].reshape(n_p, n_c),
                                     z[:, 0].reshape(n_p, n_c))
                 continue
-            p = em.predict_parts(X)
+            p = em.predict_parts(X, block=n_c)
             out[o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
-                                  for a in (p.mean, p.latent_sd, p.chaos_sd)))
+                                  for a in (p.mean, p.latent_sd, p.chaos_sd)),
+                                latent_corr=p.latent_corr[:, 0])
         return out
 
     def point_vector(self, theta, effects=None) -> np.ndarray:
@@ -292,7 +293,8 @@ class EmulatedTwin:
         parts = self.dem_parts(np.vstack(vs))
         for i, k in enumerate(keys):
             self._memo[k] = {o: Prediction(p.mean[i:i + 1], p.latent_sd[i:i + 1],
-                                           p.chaos_sd[i:i + 1]) for o, p in parts.items()}
+                                           p.chaos_sd[i:i + 1], p.latent_corr[i:i + 1])
+                             for o, p in parts.items()}
 
     def _assemble(self, parts, theta, effects, which):
         """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
@@ -321,6 +323,35 @@ class EmulatedTwin:
                 out[y_pos] = abs(slope) * y_t / 1000.0 * np.hypot(m * v_m * f_m * v_s,
                                                                   e_kin * f_s)
         return pd.Series(out, index=self.keys, dtype=float)
+
+    def _latent_cov(self, parts, theta, effects):
+        """The emulator's covariance of the twin's mean response between every pair of
+        observations (self.keys' order) at one point: each emulated observable's errors at the
+        conditions correlated as its GP says (one smooth response), the observables'
+        emulators independent of one another, carried to the yields through E_tot to first
+        order (the same propagation as their sd). Its diagonal is ``latent_sd`` squared."""
+        v_col = SPEED_COLUMN[self.velocity_frame]
+        direct, d_row, d_col, y_pos, y_col, y_t = self._lay
+        names = (v_col, "f_col_hz") + self.flight_obs
+        n_c = len(self._X_cond)
+        blocks = []
+        for o in names:
+            sd = parts[o].latent_sd[0]
+            blocks.append(parts[o].latent_corr[0] * np.outer(sd, sd))
+        J = np.zeros((len(self.keys), len(names) * n_c))
+        fac = self._observed(parts, effects)
+        J[direct, d_row * n_c + d_col] = 1.0 if fac is None else fac[d_row, d_col]
+        if len(y_pos):
+            _, slope, _ = self._kinetics(theta, effects)
+            v_m = parts[v_col].mean[0][y_col]
+            f_m = parts["f_col_hz"].mean[0][y_col]
+            m = self.mass_kg[y_col]
+            J[y_pos, y_col] = slope * y_t / 1000.0 * m * v_m * f_m
+            J[y_pos, n_c + y_col] = slope * y_t / 1000.0 * 0.5 * m * v_m ** 2
+        S = np.zeros((J.shape[1], J.shape[1]))
+        for i, b in enumerate(blocks):
+            S[i * n_c:(i + 1) * n_c, i * n_c:(i + 1) * n_c] = b
+        return J @ S @ J.T
 
     def _observed(self, parts, effects):
         """(stacked observables x conditions) factors of the observation effects switched on
@@ -376,6 +407,14 @@ class EmulatedTwin:
         """The emulator's sd of the twin's mean response at ``theta`` (default theta_ref)."""
         theta = dict(theta or self.theta_ref)
         return self._assemble(self._parts_at(theta, effects), theta, effects, "latent_sd")
+
+    def model_cov(self, theta=None, effects=None) -> np.ndarray:
+        """The emulator's covariance of the twin's mean response at ``theta`` (default
+        theta_ref) between the observations, an (n, n) array in the order of ``self.keys`` (the
+        index of :meth:`predict`): :meth:`model_se` squared on its diagonal, and the
+        correlation of one emulator's errors across the conditions off it."""
+        theta = dict(theta or self.theta_ref)
+        return self._latent_cov(self._parts_at(theta, effects), theta, effects)
 
     def resolution_se(self, effects) -> pd.Series:
         """Zero: the emulator's sd with effects on is part of :meth:`model_se` at the point

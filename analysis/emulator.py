@@ -79,10 +79,15 @@ class Prediction:
     mean : the twin's mean response
     latent_sd : the emulator's uncertainty about that mean (more runs would shrink it)
     chaos_sd : the scatter of one new twin run about its mean (the twin's chaos)
+    latent_corr : None, or shape (n // block, n_outputs, block, block) - the correlation of the
+        emulator's errors between the rows of each block of ``block`` consecutive inputs (one
+        design point's conditions: one smooth response, so its errors at neighbouring
+        conditions move together; :meth:`GPEmulator.predict_parts` with ``block``)
     """
     mean: np.ndarray
     latent_sd: np.ndarray
     chaos_sd: np.ndarray
+    latent_corr: np.ndarray | None = None
 
     def sd(self, n_runs=1):
         """sd of the mean of ``n_runs`` new twin runs (np.inf: the mean response itself)."""
@@ -300,26 +305,53 @@ class GPEmulator:
         med = np.median(np.array(list(self.chaos_var_.values())), axis=0)
         return np.sqrt(med + self.nugget_var_)
 
-    def _predict_model_units(self, X):
+    def _predict_model_units(self, X, block=None):
+        """(mean, latent variance, chaos variance), each (n, n_outputs) in model units, and
+        with ``block`` the latent correlations within each block of rows (else None).
+
+        The latent part is the smooth kernel's posterior alone (Rasmussen & Williams 2006,
+        eq. 2.24 without the white term): the nugget is scatter of the runs about the smooth
+        response - the twin's chaos beyond what the replicates estimated (a 3-seed variance is
+        uncertain by a factor 2) - not the emulator's uncertainty about the mean, which shrinks
+        as runs come in."""
+        from scipy.linalg import solve_triangular
         Xr = self._raw_inputs(X)
         Xs = self._scale(Xr)
-        mean = np.empty((len(Xs), len(self.gps_)))
+        n, k = len(Xs), len(self.gps_)
+        if block is not None and (block < 1 or n % block):
+            raise ValueError("predict_parts: %d inputs do not split into blocks of %s"
+                             % (n, block))
+        mean = np.empty((n, k))
         var = np.empty_like(mean)
+        corr = None if block is None else np.empty((n // block, k, block, block))
         for j, gp in enumerate(self.gps_):
-            m, s = gp.predict(Xs, return_std=True)
-            mean[:, j], var[:, j] = m, s ** 2
-        # the nugget is scatter of the runs about the smooth response: the twin's chaos beyond
-        # what the replicates estimated (a 3-seed variance is uncertain by a factor 2), not
-        # the emulator's uncertainty about the mean - that shrinks as runs come in
+            smooth = gp.kernel_.k1
+            Kt = smooth(Xs, gp.X_train_)
+            V = solve_triangular(gp.L_, Kt.T, lower=True, check_finite=False)
+            y_sd = float(np.atleast_1d(gp._y_train_std)[0])
+            mean[:, j] = (Kt @ gp.alpha_) * y_sd + float(np.atleast_1d(gp._y_train_mean)[0])
+            var[:, j] = np.maximum(smooth.diag(Xs) - np.einsum("ij,ij->j", V, V), 0.0) * y_sd ** 2
+            for b in range(0 if corr is None else n // block):
+                rows = slice(b * block, (b + 1) * block)
+                c = smooth(Xs[rows]) - V[:, rows].T @ V[:, rows]
+                d = np.sqrt(np.maximum(np.diag(c), 0.0))
+                ok = d > 1e-12 * max(float(d.max()), 1e-300)
+                r = np.eye(block)
+                r[np.ix_(ok, ok)] = np.clip(c[np.ix_(ok, ok)] / np.outer(d[ok], d[ok]), -1, 1)
+                np.fill_diagonal(r, 1.0)
+                corr[b, j] = r
         nugget = self.nugget_var_[None, :]
-        var = np.maximum(var - nugget, 0.0)
         chaos = nugget if self.chaos_var_ is None else self._chaos_var(Xr) + nugget
-        return mean, var, np.broadcast_to(chaos, var.shape).copy()
+        return mean, var, np.broadcast_to(chaos, var.shape).copy(), corr
 
-    def predict_parts(self, X) -> Prediction:
+    def predict_parts(self, X, block=None) -> Prediction:
         """The twin's mean response, the emulator's sd of it and one run's chaos sd at X, in
-        output units (a log output's sds are those of its value, to first order)."""
-        mean, var, chaos = self._predict_model_units(X)
+        output units (a log output's sds are those of its value, to first order); with
+        ``block`` (the number of conditions of a design point: X's rows in consecutive blocks
+        of that many) also the correlations of the emulator's errors within each block (a
+        log output's are those of its value, to first order: a correlation does not change
+        when each row is rescaled)."""
+        mean, var, chaos, corr = self._predict_model_units(X, block)
         L = self._is_log()
         lat, ch = np.sqrt(var), np.sqrt(chaos)
         if L.any():
@@ -327,7 +359,7 @@ class GPEmulator:
             mean[:, L] = np.exp(mean[:, L])
             lat[:, L] = lat[:, L] * mean[:, L]
             ch[:, L] = ch[:, L] * mean[:, L]
-        return Prediction(mean, lat, ch)
+        return Prediction(mean, lat, ch, corr)
 
     def predict(self, X, return_std=False, include_noise=True):
         """Emulated outputs (the mean only, without ``return_std``: no variance computed).
@@ -409,7 +441,7 @@ class GPEmulator:
     def score(self, X, Y):
         """Held-out error table of new runs (same columns as :meth:`loo_report`)."""
         Y = self._targets(Y)
-        mean, var, chaos = self._predict_model_units(X)
+        mean, var, chaos, _ = self._predict_model_units(X)
         return _error_table(self.outputs, Y, mean, np.sqrt(var + chaos), self.noise_sd(),
                             self._is_log())
 

@@ -215,6 +215,11 @@ class WithAdded:
             # the model's own uncertainty where each fit asks (an emulator's): a callable
             def se_at(theta, effects=None):
                 return self.model.model_se(*self._split(theta, effects))
+            if hasattr(self.model, "model_cov"):
+                # ... and how its errors at one point correlate between the observations
+                def cov_at(theta, effects=None):
+                    return self.model.model_cov(*self._split(theta, effects)), self.model.keys
+                se_at.cov = cov_at
             return se_at
         se = self.model.model_se(self.theta)
         if not self.added:
@@ -298,7 +303,9 @@ def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observa
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
     mu = cal.prediction.reindex(key).to_numpy(float)
     sig = np.asarray(cal.sigma, float)
-    draws = [obs.assign(value=mu + sig * rng.standard_normal(len(mu)))
+    # the draws' noise as the fit's likelihood states it (the emulator's errors correlated)
+    noise = (lambda z: sig * z) if cal.chol is None else (lambda z: cal.chol @ z)
+    draws = [obs.assign(value=mu + noise(rng.standard_normal(len(mu))))
              for _ in range(int(n_draws))]
     args = (base_params, effs, alpha, noise_observables, conditions)
     if int(n_jobs) > 1 and len(draws) > 1:
@@ -697,6 +704,13 @@ def emulator_vs_twin(model, obs, theta, added, twin_mean, n_seeds) -> dict:
     ok = np.isfinite(z)
     n = int(ok.sum())
     chi2 = float(np.sum(z[ok] ** 2))
+    if n and hasattr(model, "model_cov"):
+        # the emulator's errors at one point move together across conditions: chi2 in the
+        # metric of its covariance plus the rerun's chaos
+        idx = model.keys.get_indexer(key[ok])
+        S = model.model_cov(theta, dict(added))[np.ix_(idx, idx)]
+        S[np.diag_indices_from(S)] = var[ok]
+        chi2 = float(d[ok] @ np.linalg.solve(S, d[ok]))
     i = int(np.nanargmax(np.where(ok, np.abs(z), -np.inf))) if n else 0
     return {"chi2": chi2, "n": n, "p": float(stats.chi2.sf(chi2, n)) if n else float("nan"),
             "max_abs_z": float(abs(z[i])) if n else float("nan"),

@@ -480,3 +480,53 @@ def test_dataset_observations_add_the_jar_tracks_impact_observables():
     rest = ~(out["observable"] == "e_app")
     assert (out.loc[rest, "sd"].to_numpy() == obs.loc[rest, "sd"].to_numpy()).all()
     pd.testing.assert_frame_equal(obs, dataset_observations(ds)[0])     # obs not modified
+
+
+def test_an_emulators_correlated_error_is_scored_with_its_covariance():
+    """An emulator's error at one point is ONE smooth function of the conditions, zero at its
+    design points and largest between them. Known truth: the model = the analytic curved
+    ridge + such an error (a random smooth shape over the 12 observations, its size
+    0.02 g(s), g 0 at the design strengths and 1 midway; the truth s = 0.6 sits midway between
+    design strengths 0.3 and 0.9), the data's own sd 0.01. Scored with the error's covariance
+    (``model_se.cov``) the 95 % profile interval covers the truth in >= 82.5 % of 40 draws
+    (90 % measured on 60); scored as 12 independent errors, the sum of their log-variances
+    makes a well at every design strength and the same intervals covered 70 % (42 / 60)."""
+    from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
+    x, keys, ridge = curved_ridge()
+    design = np.array([0.0, 0.3, 0.9, 1.5, 2.1, 3.0])
+
+    def g(s):
+        i = int(np.clip(np.searchsorted(design, s) - 1, 0, len(design) - 2))
+        return np.sin(np.pi * (s - design[i]) / (design[i + 1] - design[i])) ** 2
+    B = np.column_stack([np.ones_like(x), 2 * x - 1, 6 * (x - 0.5) ** 2 - 0.5]) / np.sqrt(3)
+    C = B @ B.T
+    size, sd = 0.02, 0.01
+    rng = np.random.default_rng(5)
+    hits, n = 0, 40
+    for k in range(n):
+        shape = B @ rng.standard_normal(3)
+
+        def predict(theta, effects=None, shape=shape):
+            return ridge(theta) + size * g(theta["s"]) * shape
+
+        def model_se(theta, effects=None):
+            return pd.Series(size * g(theta["s"]) * np.sqrt(np.diag(C)), index=keys)
+        model_se.cov = lambda theta, effects=None: ((size * g(theta["s"])) ** 2 * C, keys)
+        obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
+                            "value": ridge({"a": 1.0, "s": 0.6}).to_numpy()
+                            + sd * rng.standard_normal(len(x)), "sd": sd})
+        base = [BaseParameter("a", 0.8, 0.2, 3.0), BaseParameter("s", 0.3, 0.0, 3.0)]
+        _, fit = calibrate_base(predict, obs, base, model_se=model_se)
+        iv = profile_interval(predict, obs, base, "s", fit, model_se=model_se)
+        hits += iv.lower <= 0.6 <= iv.upper
+        if k == 0:
+            # the fit is scored in the covariance's metric: chi2 = |chol^-1 (y - mu)|^2 and
+            # the penalty its log-determinant against the data's sd
+            assert fit.chol is not None
+            S = np.diag(fit.sigma ** 2) + (size * g(fit.params["s"])) ** 2 * (
+                C - np.diag(np.diag(C)))
+            r = obs["value"].to_numpy() - fit.prediction.to_numpy()
+            assert fit.chi2 == pytest.approx(float(r @ np.linalg.solve(S, r)), rel=1e-6)
+            assert fit.penalty == pytest.approx(np.linalg.slogdet(S)[1]
+                                                - 2 * len(x) * np.log(sd), rel=1e-6)
+    assert hits >= 0.825 * n, hits
