@@ -199,9 +199,11 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert page.startswith("# The loop on fk (SYNTHETIC)")
     assert "## Focus wave" in page and "| before the focus wave |" in page
     assert info["focus"]["n_runs"] == 3 * 8 and set(info["focus"]) >= {"before", "after"}
-    # a second run is all cached and replaces only its own folder
+    # a second run is all cached and replaces only its own folder (the design waves' runs:
+    # without the focus wave and the rerun, whose points are the first run's fit's)
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
-                    "--null-draws", "0", "--no-intervals"] + SMALL)
+                    "--null-draws", "0", "--no-intervals", "--no-rerun"]
+                   + SMALL[:6] + ["--focus-points", "0"] + SMALL[8:])
     assert rc == 0
     assert json.loads((out / "loop.json").read_text())["new_runs"] == 0
 
