@@ -15,7 +15,7 @@ def write_vf_trend_figure(trend, path, edem, match_points):
     against the 20.6 mm ball's, EDEM's pair with the +- ``match_points`` box. Returns ``path``."""
     MATCH_POINTS = match_points
     plt = pyplot()
-    names = list(dict.fromkeys(trend["variant"]))
+    names = list(dict.fromkeys(trend.loc[trend["runs_done"] > 0, "variant"]))
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 0.32 * len(names) + 2.6),
                                  gridspec_kw={"width_ratios": [1.35, 1]})
     y = np.arange(len(names))[::-1]
