@@ -58,23 +58,24 @@ D_DEFAULT_M = 0.028
 _PARAM_JAR = {"jar_inner_diameter_m": D_DEFAULT_M}
 _ARC = lambda c: {"frame": "lab", "effects": {"arc_motion": {"curvature_1_m": c, "tilt": 0.0}}}  # noqa: E731
 
-#: the variants, in run order (the priority when time is short): name -> (group, change of the
-#: run config from the default twin at the paper's contact parameters in the jar frame)
+#: the variants, in run order (the priority when time is short: one level of every group
+#: first, then second levels, the arc, the pairs): name -> (group, change of the run config
+#: from the default twin at the paper's contact parameters in the jar frame)
 VARIANTS = {
     "default": ("default", {}),
     "fillet 10 mm": ("end shape", {**_PARAM_JAR, "jar_fillet_radius_m": 0.010}),
     "fillet 13 mm (domed)": ("end shape", {**_PARAM_JAR, "jar_fillet_radius_m": 0.013}),
     "A 12 mm": ("g/(A w^2)", {"amplitude_m": 0.012}),
-    "A 15 mm": ("g/(A w^2)", {"amplitude_m": 0.015}),
     "restitution 0.3": ("restitution", {"restitution": 0.3}),
     "rolling constant_torque (EDEM)": ("rolling model", {"rolling_model": "constant_torque"}),
-    "D 24 mm": ("d/D", {"jar_inner_diameter_m": 0.024}),
     "D 32 mm": ("d/D", {"jar_inner_diameter_m": 0.032}),
     "L 50 mm": ("(L-d)/A", {**_PARAM_JAR, "jar_inner_length_m": 0.050}),
     "static friction 0.3": ("friction", {"static_friction": 0.3}),
     "rolling friction 0.1": ("friction", {"rolling_friction": 0.1}),
-    "arc, pivot above (c -10 1/m)": ("drive", _ARC(-10.0)),
     "fillet 2 mm": ("end shape", {**_PARAM_JAR, "jar_fillet_radius_m": 0.002}),
+    "A 15 mm": ("g/(A w^2)", {"amplitude_m": 0.015}),
+    "D 24 mm": ("d/D", {"jar_inner_diameter_m": 0.024}),
+    "arc, pivot above (c -10 1/m)": ("drive", _ARC(-10.0)),
     "fillet 13 mm x A 12 mm": ("pair", {**_PARAM_JAR, "jar_fillet_radius_m": 0.013,
                                         "amplitude_m": 0.012}),
     "fillet 13 mm x constant_torque": ("pair", {**_PARAM_JAR, "jar_fillet_radius_m": 0.013,
