@@ -251,3 +251,31 @@ def test_cli_rejects_both_modes(capsys):
     with pytest.raises(SystemExit) as e:
         vt.main(["--runs-only", "--cached-only"])
     assert e.value.code == 2
+
+
+def test_definitions_by_variant_flags_the_pair():
+    """A per-run definitions table whose chord_5ms falls as EDEM's does for one variant."""
+    rng = np.random.default_rng(3)
+    rows = []
+    e = vt.EDEM_TREND_PCT
+    for name in ("default", "fillet 10 mm"):
+        for d in vt.DIAMETERS_MM:
+            for f in vt.FREQUENCIES_HZ:
+                for s in range(3):
+                    base = 80.0 * math.exp(0.003 * rng.standard_normal())
+                    row = {"variant": name, "run_id": "r%d" % len(rows), "frequency_hz": f,
+                           "ball_diameter_mm": d}
+                    for k in vt.SPEED_DEFINITIONS:
+                        row[k] = base
+                    if name == "fillet 10 mm" and f == 30.0:
+                        row["chord_5ms"] = base * (1 + e[d] / 100)
+                    rows.append(row)
+    bv = vt.definitions_by_variant(pd.DataFrame(rows)).set_index(["variant", "definition"])
+    assert bv.loc[("fillet 10 mm", "chord_5ms"), "gives_edem_pair"]
+    assert not bv.loc[("default", "chord_5ms"), "gives_edem_pair"]
+    assert not bv.loc[("fillet 10 mm", "3d_all"), "gives_edem_pair"]
+    assert bv.loc[("fillet 10 mm", "chord_5ms"), "change_17_5_pct"] == pytest.approx(
+        e[17.5], abs=1.0)
+    lines = __import__("analysis.report.vf_trend_page", fromlist=["x"]).by_variant_lines(
+        bv.reset_index(), e, vt.EDEM_VF_MM, vt.MATCH_POINTS)
+    assert any("fillet 10 mm read as chord_5ms" in x for x in lines)

@@ -187,9 +187,13 @@ def vf_trend_page(res, table, seeds, info, partial=False, figure=True) -> str:
                         "20.6 mm change +- se [%]",
                         "change minus 3d_all's 17.5 / 20.6 [points]"], rows), ""]
         L += definitions_words(defs, EDEM_TREND_PCT)
+    bv = res.get("by_variant")
+    if bv is not None and len(bv):
+        L += by_variant_lines(bv, EDEM_TREND_PCT, EDEM_VF_MM, info["MATCH_POINTS"])
     L += ["## Files", "",
           "`trend.csv` (one row per variant and ball), `verdicts.csv` (one row per variant), "
-          "`speed_definitions.csv`, `runs.csv` (every run: run id, seed, status, motion mode, "
+          "`speed_definitions.csv`, `definitions_by_variant.csv` (every variant x definition: "
+          "change +- se per ball), `runs.csv` (every run: run id, seed, status, motion mode, "
           "v/f), `vf_trend.png`. Runs are cached by run id in results/runs/; "
           "`--dry-run` prints what is cached.", "",
           "Variants (run config changes): " + "; ".join(
@@ -218,3 +222,38 @@ def definitions_words(defs, EDEM_TREND_PCT):
                          "%s %+.2f / %+.2f" % (k, w.loc[k, 17.5], w.loc[k, 20.6])
                          for k in w.abs().max(axis=1).sort_values(ascending=False).index[:3])))
     return lines + [""]
+
+
+#: the definitions shown in the page's variant x definition table
+BY_VARIANT_SHOWN = ("3d_all", "3d_free_flight", "3d_saved_5ms", "chord_5ms", "chord_10ms")
+
+
+def by_variant_lines(bv, EDEM_TREND_PCT, EDEM_VF_MM, match_points):
+    """Section: every variant read with the main definitions, and the pairs that give EDEM's
+    changes at once."""
+    rows = []
+    for name in dict.fromkeys(bv["variant"]):
+        g = bv[bv["variant"] == name].set_index("definition")
+        rows.append([name] + ["%s / %s" % (_pm(g.loc[k, "change_17_5_pct"], np.nan),
+                                          _pm(g.loc[k, "change_20_6_pct"], np.nan))
+                              if k in g.index else "-" for k in BY_VARIANT_SHOWN])
+    L = ["## Each variant read with each definition", "",
+         "Change of v/f from 22.5 to 30 Hz [%], 17.5 mm / 20.6 mm ball (the se of each is in "
+         "`definitions_by_variant.csv`; about the size of the 3-D one's in the first table, "
+         "larger for the sparse 10 ms samples).", "",
+         md_table(["variant"] + list(BY_VARIANT_SHOWN), rows), ""]
+    hit = bv[bv["gives_edem_pair"]]
+    if hit.empty:
+        L += ["- No variant read with any of the definitions gives EDEM's %+.1f %% and "
+              "%+.1f %% within %g points at once." % (EDEM_TREND_PCT[17.5],
+                                                      EDEM_TREND_PCT[20.6], match_points), ""]
+    else:
+        L += ["- Within %g points of EDEM's %+.1f %% and %+.1f %% at once (v/f at 22.5 Hz "
+              "beside EDEM's %.1f / %.1f mm): %s." % (
+                  match_points, EDEM_TREND_PCT[17.5], EDEM_TREND_PCT[20.6],
+                  EDEM_VF_MM[17.5][0], EDEM_VF_MM[20.6][0], "; ".join(
+                      "%s read as %s: %s %% / %s %% (v/f %.1f / %.1f mm)" % (
+                          r.variant, r.definition, _pm(r.change_17_5_pct, r.se_17_5_pct),
+                          _pm(r.change_20_6_pct, r.se_20_6_pct), r.vf_22_5hz_17_5_mm,
+                          r.vf_22_5hz_20_6_mm) for r in hit.itertuples())), ""]
+    return L

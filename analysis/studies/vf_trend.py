@@ -21,13 +21,15 @@ flight (the mode the paper measured) enter; the others are counted.
 Second table: several definitions of "the mean speed" (:func:`speed_definitions`: time average
 over saved frames of the 3-D speed or of |v_x|, with and without the time in contact, the jar
 frame, speeds saved every 5 / 10 ms, chords between positions saved every 5 / 10 ms) measured on
-the default twin's recordings, each with its own 22.5 -> 30 Hz change.
+the default twin's recordings, each with its own 22.5 -> 30 Hz change; and the same for every
+variant (``definitions_by_variant.csv``: which mechanism read with which definition gives
+EDEM's pair).
 
     python -m analysis.studies.vf_trend --out results/studies/vf_trend [--workers 1]
         [--seeds 3] [--dry-run] [--variants NAME ...] [--runs-only | --cached-only]
 
-Writes (atomically, :func:`analysis.atomic_dir.output_dir`) ``trend.csv``, ``runs.csv``,
-``speed_definitions.csv``, ``vf_trend.png`` and ``README.md`` into ``--out``.
+Writes (atomically, :func:`analysis.atomic_dir.output_dir`) the files of :data:`OUT_FILES`
+into ``--out``.
 """
 from __future__ import annotations
 
@@ -395,38 +397,51 @@ def verdicts(trend_t: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def definitions_table(table: pd.DataFrame, variant="default") -> pd.DataFrame:
-    """Each speed definition on the variant's recordings (end-to-end runs with a recording in
-    the cache): v/f per ball and frequency, its level against the twin's v_mean (3-D, all
-    frames), its 22.5 -> 30 Hz change with se, and that change's difference to the 3-D one
-    (paired by run: the trend of the ratio, its se)."""
+def run_definitions(table: pd.DataFrame) -> pd.DataFrame:
+    """Every speed definition [v/f in mm] of every finished end-to-end run whose recording is
+    in the cache: variant, run_id, frequency_hz, ball_diameter_mm and one column per
+    definition."""
     from analysis.config import RUNS_DIR
-    ok = table[(table["variant"] == variant) & (table["status"] == "ok")
-               & (table["motion_mode"] == "end_to_end") & table["recording"]]
-    if ok.empty:
-        return pd.DataFrame()
+    ok = table[(table["status"] == "ok") & (table["motion_mode"] == "end_to_end")
+               & table["recording"].astype(bool)]
     per = []
     for r in ok.itertuples():
         defs = recording_definitions(RUNS_DIR / r.run_id)
-        per.append({"run_id": r.run_id, "frequency_hz": r.frequency_hz,
+        per.append({"variant": r.variant, "run_id": r.run_id, "frequency_hz": r.frequency_hz,
                     "ball_diameter_mm": r.ball_diameter_mm,
                     **{k: 1e3 * v / r.frequency_hz for k, v in defs.items()}})
-    per = pd.DataFrame(per)
+    return pd.DataFrame(per, columns=["variant", "run_id", "frequency_hz", "ball_diameter_mm",
+                                      *SPEED_DEFINITIONS])
+
+
+def _def_trends(g, key, d):
+    """(trend of definition ``key``, trend of its ratio to 3d_all, level ratios) for ball d."""
     lo, hi = FREQUENCIES_HZ
+    g = g[g["ball_diameter_mm"] == d]
+    a = g.loc[g["frequency_hz"] == lo, key].to_numpy(float)
+    b = g.loc[g["frequency_hz"] == hi, key].to_numpy(float)
+    ra = a / g.loc[g["frequency_hz"] == lo, "3d_all"].to_numpy(float)
+    rb = b / g.loc[g["frequency_hz"] == hi, "3d_all"].to_numpy(float)
+    return a, b, trend(a, b), trend(ra, rb), np.concatenate([ra, rb])
+
+
+def definitions_table(per: pd.DataFrame, variant="default") -> pd.DataFrame:
+    """Each speed definition on the variant's recordings (:func:`run_definitions`): v/f per
+    ball and frequency, its level against the twin's v_mean (3-D, all frames), its
+    22.5 -> 30 Hz change with se, and that change's difference to the 3-D one (paired by run:
+    the trend of the ratio, its se)."""
+    g = per[per["variant"] == variant]
+    if g.empty:
+        return pd.DataFrame()
     rows = []
     for key, what in SPEED_DEFINITIONS.items():
         for d in DIAMETERS_MM:
-            g = per[per["ball_diameter_mm"] == d]
-            a = g.loc[g["frequency_hz"] == lo, key].to_numpy(float)
-            b = g.loc[g["frequency_hz"] == hi, key].to_numpy(float)
-            ra = a / g.loc[g["frequency_hz"] == lo, "3d_all"].to_numpy(float)
-            rb = b / g.loc[g["frequency_hz"] == hi, "3d_all"].to_numpy(float)
-            t, tr = trend(a, b), trend(ra, rb)
+            a, b, t, tr, ratio = _def_trends(g, key, d)
             rows.append({"definition": key, "what": what, "ball_diameter_mm": d,
                          "vf_22_5hz_mm": float(np.exp(np.log(a).mean())) if len(a) else np.nan,
                          "vf_30hz_mm": float(np.exp(np.log(b).mean())) if len(b) else np.nan,
-                         "level_vs_3d_all_pct": 100 * (float(np.exp(np.log(
-                             np.concatenate([ra, rb])).mean())) - 1),
+                         "level_vs_3d_all_pct": 100 * (float(np.exp(np.log(ratio).mean())) - 1)
+                         if len(ratio) else np.nan,
                          "change_pct": t["change_pct"], "se_pct": t["se_pct"],
                          "change_minus_3d_all_pct_points": tr["change_pct"],
                          "change_minus_3d_all_se_pct_points": tr["se_pct"],
@@ -435,14 +450,38 @@ def definitions_table(table: pd.DataFrame, variant="default") -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def definitions_by_variant(per: pd.DataFrame) -> pd.DataFrame:
+    """Every variant x speed definition: per ball the v/f at 22.5 Hz [mm] and its change to
+    30 Hz with se, and whether the pair is within :data:`MATCH_POINTS` of EDEM's."""
+    rows = []
+    for name in [v for v in VARIANTS if v in set(per["variant"])]:
+        g = per[per["variant"] == name]
+        for key in SPEED_DEFINITIONS:
+            row = {"variant": name, "definition": key}
+            for d, tag in ((17.5, "17_5"), (20.6, "20_6")):
+                a, _, t, _, _ = _def_trends(g, key, d)
+                row["vf_22_5hz_%s_mm" % tag] = float(np.exp(np.log(a).mean())) if len(a) \
+                    else np.nan
+                row["change_%s_pct" % tag] = t["change_pct"]
+                row["se_%s_pct" % tag] = t["se_pct"]
+                row["dof_%s" % tag] = t["dof"]
+            row["gives_edem_pair"] = bool(
+                abs(row["change_17_5_pct"] - EDEM_TREND_PCT[17.5]) <= MATCH_POINTS
+                and abs(row["change_20_6_pct"] - EDEM_TREND_PCT[20.6]) <= MATCH_POINTS)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def summarize(table: pd.DataFrame, seeds: int) -> dict:
     t = trend_table(table, seeds)
-    return {"trend": t, "verdicts": verdicts(t), "definitions": definitions_table(table)}
+    per = run_definitions(table)
+    return {"trend": t, "verdicts": verdicts(t), "definitions": definitions_table(per),
+            "by_variant": definitions_by_variant(per)}
 
 
 #: the files the study writes into --out
-OUT_FILES = ("trend.csv", "verdicts.csv", "speed_definitions.csv", "runs.csv", "vf_trend.png",
-             "README.md")
+OUT_FILES = ("trend.csv", "verdicts.csv", "speed_definitions.csv",
+             "definitions_by_variant.csv", "runs.csv", "vf_trend.png", "README.md")
 
 
 def write(res: dict, table: pd.DataFrame, seeds: int, out: Path, partial=False):
@@ -455,6 +494,8 @@ def write(res: dict, table: pd.DataFrame, seeds: int, out: Path, partial=False):
         res["verdicts"].to_csv(tmp / "verdicts.csv", index=False, float_format="%.4g")
         res["definitions"].to_csv(tmp / "speed_definitions.csv", index=False,
                                   float_format="%.5g")
+        res["by_variant"].to_csv(tmp / "definitions_by_variant.csv", index=False,
+                                 float_format="%.4g")
         table.to_csv(tmp / "runs.csv", index=False, float_format="%.6g")
         fig = None
         if not res["trend"].empty:
