@@ -6,6 +6,8 @@ import numpy as np
 from analysis.report.markdown import md_table
 
 TITLE = "# What makes v/f fall in a rigid harmonic jar"
+#: the largest lever scale the page calls within reach (3x the variant's change)
+LEVER_MAX = 3.0
 
 
 def _pm(x, se, nd=1):
@@ -61,16 +63,18 @@ def conclusions(trend, verd, info, finished_only=True):
                "once: %s." % (MATCH_POINTS, e17, e20, _names(gives)))
     lv = v[(v["variant"] != "default") & (v["lever_scale"] > 0)
            & (v["lever_miss_pct_points"] <= MATCH_POINTS)]
-    if len(lv):
-        out.append("Levers that would reach both within %g points if pushed further along the "
-                   "same direction (linear extrapolation of the shift from the default, scale "
-                   "k = 1 is the variant as run): %s." % (MATCH_POINTS, "; ".join(
-                       "%s (k %.1f, miss %.1f points)" % (r.variant, r.lever_scale,
-                                                          r.lever_miss_pct_points)
-                       for r in lv.itertuples())))
-    else:
-        out.append("No single lever, scaled along its own direction, reaches both within %g "
-                   "points." % MATCH_POINTS)
+    near = lv[(lv["lever_scale"] <= LEVER_MAX) & lv["variant"].isin(
+        [n for n, z in sig.items() if np.any(np.abs(z) > 2)])]
+    far = lv[~lv["variant"].isin(near["variant"])]
+    words = lambda t: "; ".join("%s (k %.1f, miss %.1f points)" % (  # noqa: E731
+        r.variant, r.lever_scale, r.lever_miss_pct_points) for r in t.itertuples())
+    out.append("Levers whose shift from the default points at EDEM's pair, so that the same "
+               "change pushed k times as far (linear extrapolation; k = 1 is the variant as "
+               "run) would come within %g points of both, with k <= %g and a shift beyond "
+               "2 se: %s." % (MATCH_POINTS, LEVER_MAX, words(near) or "none"))
+    if len(far):
+        out.append("The same only with k > %g or a shift within 2 se (an extrapolation far "
+                   "beyond what was run, or noise): %s." % (LEVER_MAX, words(far)))
     return out
 
 
