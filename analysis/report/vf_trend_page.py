@@ -259,5 +259,10 @@ def by_variant_lines(bv, EDEM_TREND_PCT, EDEM_VF_MM, match_points):
                       "%s read as %s: %s %% / %s %% (v/f %.1f / %.1f mm)" % (
                           r.variant, r.definition, _pm(r.change_17_5_pct, r.se_17_5_pct),
                           _pm(r.change_20_6_pct, r.se_20_6_pct), r.vf_22_5hz_17_5_mm,
-                          r.vf_22_5hz_20_6_mm) for r in hit.itertuples())), ""]
+                          r.vf_22_5hz_20_6_mm) for r in hit.itertuples())),
+              "- %d variant x definition pairs were compared, and the sparse definitions (10 ms: "
+              "about 50 samples per run) carry se of 1-2 points, so a hit or two is expected by "
+              "chance; a hit names a mechanism only when its level (v/f) fits EDEM's as well "
+              "and its neighbours (the same variant at 5 ms, the same definition at the "
+              "variant's other level) lean the same way." % len(bv), ""]
     return L
