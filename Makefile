@@ -12,7 +12,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        loop open-world calibrate apparatus emulator-check
+        loop open-world calibrate apparatus emulator-check vf-study
 
 help:
 	@echo "make demo   - the twin on Table 3, then the loop (calibrate, diagnose and add, twin rerun) -> results/demo/README.md, results/demo/loop/"
@@ -22,6 +22,7 @@ help:
 	@echo "make open-world - the blind suite (20 no-effect, 12 one-, 6 two-effect datasets) and the loop on each -> results/open_world/{nulls,effects,pairs}/, loop/README.md"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
+	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 2-3 h on 1 worker; cached, resumable) -> results/studies/vf_trend/"
 	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 + held-out runs; about 1.5 h on 2 cores) -> results/studies/emulator_check/"
 	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"
 	@echo "make geometry | facet-study | timestep-study - regenerate committed studies"
@@ -152,6 +153,12 @@ apparatus: setup
 	$(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --with-effect end_fillet \
 	  --v-rel-sd 0.02 --max-refits 1 --out results/apparatus/loop_table3_end_fillet_sd2
 	$(VPY) -m analysis.studies.apparatus_screen
+
+# what makes v/f fall in a rigid harmonic jar (issue 26, docs/apparatus.md): every variant x both
+# balls x 22.5 / 30 Hz x 3 seeds, one YADE process at a time; a kill loses at most the running
+# run, the same command resumes (--dry-run: what is cached)
+vf-study: setup
+	$(VPY) -m analysis.studies.vf_trend --out results/studies/vf_trend --workers 1 --seeds 3
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv

@@ -741,8 +741,11 @@ def render_index(results_dir, results: list[PageResult]) -> str:
     titles = {s.name: s.title for s in STUDIES}
     rows = []
     for r in results:
+        subs = _sub_pages(results_dir / r.study) if (results_dir / r.study).is_dir() else []
+        more = ("; pages: " + ", ".join(f"[{s.split('/')[0]}]({r.study}/{s})" for s in subs)
+                if subs else "")
         rows.append([f"[{r.study}]({r.study}/README.md)", titles[r.study],
-                     "ok" if r.ok else "**problems**", r.headline])
+                     "ok" if r.ok else "**problems**", r.headline + more])
     for name, module in EXTERNAL_PAGES.items():
         d = results_dir / name
         if not d.is_dir():
