@@ -365,10 +365,16 @@ class EmulatedTwin:
         names = ("v_mean_m_s", "f_col_hz") + self.flight_obs
         fac = np.ones((len(names), len(self._X_cond)))
         f_col = parts["f_col_hz"].mean[0]
+        # the twin's state per condition, for factors that need more than f_col (keywords of
+        # the module's observed_factor; effects.base.ObservationEffect)
+        state = {"v_mean_m_s": parts[SPEED_COLUMN[self.velocity_frame]].mean[0],
+                 "frequency_hz": self._X_cond["frequency_hz"].to_numpy(float),
+                 "ball_diameter_m": self._X_cond["ball_diameter_m"].to_numpy(float)}
+        state.update({o: parts[o].mean[0] for o in self.flight_obs})
         for k in on:
             e = load_effects(self.observation[k].spec(effects[k]), side="observation")[0]
             for j, o in enumerate(names):
-                fac[j] *= e.factor_of(o, f_col)
+                fac[j] *= e.factor_of(o, f_col, **state)
         return fac
 
     @property

@@ -1452,7 +1452,8 @@ def _main(argv=None):
                     help="an optional catalog entry diagnosed beside the default ones "
                     "(repeatable): end_fillet (the jar's end edges rounded more; needs the "
                     "default or a parametric jar), stroke_drift (the stroke falls with the set "
-                    "frequency)")
+                    "frequency); the measurement chain, at no twin run: apparent_scale, "
+                    "smoothing_window, frame_rate, camera_plane, collision_count (docs/loop.md)")
     ap.add_argument("--v-rel-sd", type=float, default=None, metavar="F",
                     help="[-] measurement sd of v_mean assumed where the dataset states none, as a "
                     "fraction of v_mean (default 0.015; e.g. 0.01 for 1 %%)")

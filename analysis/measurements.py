@@ -16,6 +16,9 @@ tracks/<condition_id>.csv   t_s, x_m, y_m (camera plane, x along the jar axis)  
                             [jar_x_m: the jar's x in the same frames, for the
                             impact observables of analysis.flights]
 videos/<condition_id>.*     + videos/video.json: fps, ball_diameter_px or m_per_px  no
+                            [exposure_s, smoothing_window_frames,
+                            smoothing_polyorder, scale_method: the observation
+                            chain, :func:`observation_pins`]
 yields.csv                  condition_id, time_min, yield_pct                      no
                             [yield_sd_pct, phase: powder | wax | complete]
 ==========================  =====================================================  ========
@@ -147,7 +150,8 @@ class Dataset:
     tracks : dict[str, DataFrame]
         condition_id -> t_s, x_m, y_m (camera plane)
     video : dict or None
-        videos/video.json (fps, ball_diameter_px or m_per_px)
+        videos/video.json (fps, ball_diameter_px or m_per_px; optional exposure_s,
+        smoothing_window_frames, smoothing_polyorder, scale_method)
     video_files : dict[str, Path]
         condition_id -> video file
     yields : DataFrame or None
@@ -190,6 +194,15 @@ class Dataset:
     def synthetic(self) -> bool:
         """True when dataset.json says ``"synthetic": true`` (generated data, not measured)."""
         return self.meta.get("synthetic", False) is True
+
+    @property
+    def observation_chain(self) -> dict:
+        """What videos/video.json states about how the films were observed: ``fps`` and those
+        of :data:`VIDEO_CHAIN_KEYS` it holds ({} without a video.json); the observation
+        effects these pin: :func:`observation_pins`."""
+        if self.video is None:
+            return {}
+        return {k: self.video[k] for k in ("fps",) + VIDEO_CHAIN_KEYS if k in self.video}
 
     @property
     def warnings(self) -> list:
@@ -484,6 +497,15 @@ def _validate_track(df, fname):
     return out
 
 
+#: the optional keys of videos/video.json that state the observation chain (how the dataset's
+#: speeds and collision counts were measured from its films); docs/dataset_format.md
+VIDEO_CHAIN_KEYS = ("exposure_s", "smoothing_window_frames", "smoothing_polyorder",
+                    "scale_method")
+#: the scale methods video.json may state: the ball's own (blurred) apparent diameter, or a
+#: calibration target (a ruler, the jar's known length) in the jar's axial plane
+SCALE_METHODS = ("apparent_diameter", "calibration_target")
+
+
 def _validate_video(meta, fname="videos/video.json"):
     if not isinstance(meta, dict):
         raise DatasetError("%s: must hold a JSON object" % fname)
@@ -497,6 +519,77 @@ def _validate_video(meta, fname="videos/video.json"):
             if (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)
                     or v <= 0):
                 raise DatasetError("%s: %r must be a positive number, got %r" % (fname, key, v))
+    # the observation chain (optional; unknown keys are kept and ignored, as in every file)
+    if "exposure_s" in meta:
+        v = meta["exposure_s"]
+        if (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)
+                or v < 0):
+            raise DatasetError("%s: 'exposure_s' must be a number >= 0 [s], got %r"
+                               % (fname, v))
+        if v > (1.0 + 1e-9) / meta["fps"]:
+            raise DatasetError("%s: 'exposure_s' = %g s is longer than the frame interval "
+                               "1 / fps = %g s (an exposure in microseconds written as "
+                               "seconds?)" % (fname, v, 1.0 / meta["fps"]))
+    for key, lowest in (("smoothing_window_frames", 1), ("smoothing_polyorder", 0)):
+        if key in meta:
+            v = meta[key]
+            if not isinstance(v, int) or isinstance(v, bool) or v < lowest:
+                raise DatasetError("%s: %r must be a whole number >= %d, got %r"
+                                   % (fname, key, lowest, v))
+    if "smoothing_polyorder" in meta:
+        if "smoothing_window_frames" not in meta:
+            raise DatasetError("%s: 'smoothing_polyorder' needs 'smoothing_window_frames' "
+                               "(the window it was fitted over)" % fname)
+        if meta["smoothing_polyorder"] >= meta["smoothing_window_frames"]:
+            raise DatasetError("%s: 'smoothing_polyorder' (%d) must be less than "
+                               "'smoothing_window_frames' (%d)"
+                               % (fname, meta["smoothing_polyorder"],
+                                  meta["smoothing_window_frames"]))
+    if "scale_method" in meta and meta["scale_method"] not in SCALE_METHODS:
+        raise DatasetError("%s: 'scale_method' must be one of %s, got %r"
+                           % (fname, ", ".join(repr(m) for m in SCALE_METHODS),
+                              meta["scale_method"]))
+
+
+#: the moving-average equivalent of a Savitzky-Golay window of w frames, polyorder 2, as a
+#: fraction of w / fps (effects/smoothing_window.py: measured on 40 twin recordings, ~7 %)
+SAVGOL_TAU_FRACTION = 0.3
+
+
+def observation_pins(video) -> dict:
+    """What a video.json states about the observation chain, as the observation effects it
+    pins: {effect name: {parameter: value}} (docs/dataset_format.md, "The observation chain").
+
+    - ``smoothing_window_frames`` 1 (the speeds are raw frame-to-frame chords): frame_rate at
+      the frame interval 1 / fps and ``exposure_s`` (0 unstated), smoothing_window at 0;
+    - ``smoothing_window_frames`` w > 1 with ``smoothing_polyorder``: smoothing_window's
+      window_s = w / fps for polyorder 0 or 1 (a Savitzky-Golay filter of order 0 or 1 is the
+      moving average), ~ :data:`SAVGOL_TAU_FRACTION` w / fps for 2 or 3 (the same filter;
+      measured for 2, ~7 %), and frame_rate at 0: smoothing the chords widens the same
+      corner (two boxes of widths tau >= dt lose tau / 2 + dt^2 / (6 tau): the chord's share
+      is within the window's uncertainty); a higher polyorder, or none stated, pins neither;
+    - no smoothing key: neither (they have one form, v (1 - f_col x / 2): diagnose one);
+    - ``scale_method`` ``calibration_target``: apparent_scale at 0 (no apparent diameter);
+      ``apparent_diameter`` pins nothing (the blur stays free).
+
+    None or {} gives {}. The loop does not read these yet.
+    """
+    if not video:
+        return {}
+    fps = float(video["fps"])
+    out = {}
+    w = video.get("smoothing_window_frames")
+    if w == 1:
+        out["frame_rate"] = {"frame_interval_s": 1.0 / fps,
+                             "exposure_s": float(video.get("exposure_s", 0.0))}
+        out["smoothing_window"] = {"window_s": 0.0}
+    elif w is not None and video.get("smoothing_polyorder") in (0, 1, 2, 3):
+        frac = 1.0 if video["smoothing_polyorder"] < 2 else SAVGOL_TAU_FRACTION
+        out["frame_rate"] = {"frame_interval_s": 0.0, "exposure_s": 0.0}
+        out["smoothing_window"] = {"window_s": frac * w / fps}
+    if video.get("scale_method") == "calibration_target":
+        out["apparent_scale"] = {"blur_fraction": 0.0}
+    return out
 
 
 # --------------------------------------------------------------------------- plausibility

@@ -349,14 +349,37 @@ class ObservationEffect(_Declared):
     f_col_hz)`` is the factor [-] (broadcast to ``f_col_hz``, the twin's collision rate per
     condition) by which the measurement chain reports the twin's true ``observable``. The twin
     and the chemistry (which sees the true speed) are unchanged: no run is made for it.
+
+    A factor that needs more of the twin's state at each condition than its collision rate
+    declares it as keyword arguments of its ``observed_factor`` (e.g. ``v_mean_m_s=None``,
+    ``vy_rms_m_s=None``); ``factor_of(observable, f_col_hz, **state)`` passes on only the
+    keywords the function names (all of them to a ``**kwargs``), so a factor of
+    ``(observable, f_col_hz, params)`` alone keeps working. The state the loop's emulator
+    passes (analysis.emulated_twin.EmulatedTwin._observed), each an array per condition:
+    ``v_mean_m_s`` (the twin's mean speed in the dataset's frame), ``frequency_hz``,
+    ``ball_diameter_m`` and, with jar tracks, the impact observables (``e_app``,
+    ``v_in_m_s``, ``impact_phase_rad``, ``jar_amplitude_m``, ``vy_rms_m_s``); a keyword it
+    does not get is None (the factor then assumes what its module says, or raises).
     """
     factor = None  # staticmethod(the module's observed_factor), set by the subclass
 
-    def factor_of(self, observable, f_col_hz):
+    def factor_of(self, observable, f_col_hz, **state):
         import numpy as np
         f = np.asarray(f_col_hz, dtype=float)
-        return np.broadcast_to(np.asarray(self.factor(observable, f, self.params), float),
+        kw = accepted_keywords(self.factor, state)
+        return np.broadcast_to(np.asarray(self.factor(observable, f, self.params, **kw), float),
                                f.shape)
+
+
+def accepted_keywords(fn, kwargs):
+    """The items of ``kwargs`` that ``fn`` accepts by name (all of them if it takes
+    ``**kwargs``)."""
+    import inspect
+    params = inspect.signature(fn).parameters.values()
+    if any(p.kind == p.VAR_KEYWORD for p in params):
+        return dict(kwargs)
+    names = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    return {k: v for k, v in kwargs.items() if k in names}
 
 
 def nonnegative_array(name, x):

@@ -27,6 +27,10 @@ EXPECTED_OPTIONAL = [
     ("stroke_drift", "dem", "fall_per_hz", 0.015, "1/Hz", "linear", 1.0, None, None),
     ("apparent_scale", "observation", "blur_fraction", 0.1, "-", "linear", 1.0, None, None),
     ("smoothing_window", "observation", "window_s", 0.006, "s", "linear", 1.0, None, None),
+    ("frame_rate", "observation", "frame_interval_s", 0.002, "s", "linear", 1.0, None, None),
+    ("camera_plane", "observation", "tilt_rad", 1.0, "rad", "square", 0.2, None, None),
+    ("collision_count", "observation", "flip_noise_m_s", 1.5, "m/s", "linear", 1.0, None,
+     None),
 ]
 
 

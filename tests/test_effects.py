@@ -22,11 +22,12 @@ def mod(name):
 
 
 # ---------------------------------------------------------------- declarations and validation
-def test_catalog_holds_the_fourteen_effects():
+def test_catalog_holds_the_seventeen_effects():
     assert set(NAMES) == {"viscoelastic_restitution", "arc_motion", "jar_compliance",
                           "powder_layer", "rolling_resistance", "air_drag", "impact_threshold",
                           "first_order_depletion", "induction_period", "temperature_rise",
-                          "end_fillet", "stroke_drift", "apparent_scale", "smoothing_window"}
+                          "end_fillet", "stroke_drift", "apparent_scale", "smoothing_window",
+                          "frame_rate", "camera_plane", "collision_count"}
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -141,7 +142,8 @@ def test_load_effects_splits_by_kind():
     assert {e.name for e in dem} | {e.name for e in kin} | {e.name for e in obs} == set(NAMES)
     assert all(isinstance(e, base.Effect) for e in dem)
     assert all(isinstance(e, base.KineticsEffect) for e in kin)
-    assert {e.name for e in obs} == {"apparent_scale", "smoothing_window"}
+    assert {e.name for e in obs} == {"apparent_scale", "smoothing_window", "frame_rate",
+                                     "camera_plane", "collision_count"}
     assert all(isinstance(e, base.ObservationEffect) for e in obs)
     assert {e.name for e in kin} == {"impact_threshold", "first_order_depletion",
                                      "induction_period", "temperature_rise"}
@@ -671,3 +673,132 @@ def test_apparent_scale_factor_is_the_blurred_diameter_ratio():
         assert eff.factor_of(o, np.array([50.0, 55.0])) == pytest.approx(d / (d + delta))
     for o in ("f_col_hz", "e_app", "impact_phase_rad"):
         assert np.all(eff.factor_of(o, np.array([50.0, 55.0])) == 1.0)
+
+
+def test_observation_factors_take_the_twin_state_they_name_and_ignore_the_rest():
+    """factor_of passes a module only the keywords its observed_factor names: the effects of
+    (observable, f_col_hz, params) keep working beside those that read the twin's speed."""
+    f = np.array([50.0, 60.0])
+    state = {"v_mean_m_s": np.array([2.0, 2.2]), "vy_rms_m_s": np.array([0.01, 0.02]),
+             "frequency_hz": np.array([25.0, 30.0]), "e_app": np.array([0.3, 0.3])}
+    for name in ("apparent_scale", "smoothing_window", "frame_rate", "camera_plane",
+                 "collision_count"):
+        eff = effects.load_effects({name: {}}, side="observation")[0]
+        for o in ("v_mean_m_s", "f_col_hz", "v_in_m_s", "vy_rms_m_s"):
+            assert eff.factor_of(o, f, **state).shape == f.shape
+    assert base.accepted_keywords(mod("smoothing_window").observed_factor, state) == {}
+    assert base.accepted_keywords(mod("camera_plane").observed_factor, state) == {
+        "v_mean_m_s": state["v_mean_m_s"], "vy_rms_m_s": state["vy_rms_m_s"]}
+    with pytest.raises(ValueError, match="v_mean_m_s"):
+        effects.load_effects({"collision_count": {}}, side="observation")[0].factor_of(
+            "f_col_hz", f)
+    with pytest.raises(ValueError, match="vy_rms_m_s"):
+        effects.load_effects({"camera_plane": {"depth_ratio": 1.0}}, side="observation")[0] \
+            .factor_of("v_mean_m_s", f)
+
+
+def _triangle(s):
+    """The unit triangle wave (period 2: 0 at s = 0, 1 at s = 1) and its integral from 0."""
+    n, r = np.divmod(s, 2.0)
+    return (np.where(r < 1.0, r, 2.0 - r),
+            n + np.where(r < 1.0, 0.5 * r * r, 1.0 - 0.5 * (2.0 - r) ** 2))
+
+
+@pytest.mark.parametrize("f_col", [41.3, 57.7, 69.1])
+def test_frame_rate_factor_is_the_chord_speed_of_a_sampled_ping_pong(f_col):
+    """Analytic truth: a ball at +-V between instantaneous flips (x(t) a triangle wave, f_col
+    flips per second), its position sampled every dt - the centroid of the ball blurred over an
+    exposure t_e is its mean position over the exposure, integrated exactly - and the mean
+    of the chord speeds |x_k+1 - x_k| / dt over 10 s against the effect's factor, at three
+    frame rates and three exposures (flip rates not commensurate with the frame rates)."""
+    V, T = 2.0, 1.0 / f_col
+    for dt in (1.0 / 2134.0, 1.0 / 1000.0, 1.0 / 500.0):
+        t = 0.37e-4 + np.arange(int(10.0 / dt)) * dt
+        for te in (0.0, 0.5 * dt, dt):
+            if te > 0:
+                s1, s2 = f_col * (t - te / 2) + 0.123, f_col * (t + te / 2) + 0.123
+                x = V * T * (_triangle(s2)[1] - _triangle(s1)[1]) / (f_col * te)
+            else:
+                x = V * T * _triangle(f_col * t + 0.123)[0]
+            ratio = np.mean(np.abs(np.diff(x))) / dt / V
+            eff = effects.load_effects({"frame_rate": {"frame_interval_s": dt,
+                                                       "exposure_s": te}},
+                                       side="observation")[0]
+            # measured: |ratio - factor| <= 5e-5 for losses of 1-9 %; the exposure's share
+            # (f_col te^2 / (6 dt) >= 1.6e-3 here) is 8x the tolerance
+            assert eff.factor_of("v_mean_m_s", f_col) == pytest.approx(ratio, abs=2e-4)
+            assert eff.factor_of("f_col_hz", f_col) == 1.0
+            assert eff.factor_of("v_in_m_s", f_col) == 1.0
+    null = effects.load_effects({"frame_rate": dict(effects.declaration("frame_rate")["null"])},
+                                side="observation")[0]
+    assert null.factor_of("v_mean_m_s", f_col) == 1.0
+
+
+def test_camera_plane_factor_against_projected_3d_velocities():
+    """Known 3-D velocities: a ping-pong v_x = +-V (V per flight uniform over 1.8-2.6 m/s),
+    Gaussian vertical and depth speeds of known rms (depth = k x vertical), seen by a camera
+    tilted by alpha about the vertical, x_cam = x cos(alpha) + y sin(alpha): the mean camera
+    speed over the mean 3-D speed against the effect's factor given the twin's mean 3-D speed
+    and its rms vertical speed. The quadrature form sqrt(1 - a^2 sin^2 - d^2 cos^2) misses
+    the tilted, deep cases by 2-3e-3."""
+    rng = np.random.default_rng(5)
+    n_fl, per = 400, 50
+    for alpha, k, rho in [(0.0, 1.0, 0.1), (0.0, 2.0, 0.15), (0.2, 0.0, 0.05),
+                          (0.3, 2.0, 0.1), (0.5, 1.0, 0.15), (0.35, 0.0, 0.19)]:
+        vx = (np.repeat(rng.uniform(1.8, 2.6, n_fl), per)
+              * np.repeat(np.where(np.arange(n_fl) % 2 == 0, 1.0, -1.0), per))
+        vz = rng.normal(0.0, rho * 2.2, vx.size)
+        vy = rng.normal(0.0, k * rho * 2.2, vx.size)
+        v3 = np.sqrt(vx ** 2 + vy ** 2 + vz ** 2)
+        cam = np.sqrt((vx * np.cos(alpha) + vy * np.sin(alpha)) ** 2 + vz ** 2)
+        eff = effects.load_effects({"camera_plane": {"tilt_rad": alpha, "depth_ratio": k}},
+                                   side="observation")[0]
+        fac = eff.factor_of("v_mean_m_s", 50.0, v_mean_m_s=v3.mean(),
+                            vy_rms_m_s=np.sqrt(np.mean(vz ** 2)))
+        # measured: |difference| <= 4e-4 (order d^4) for losses of 0.5-13 %
+        assert fac == pytest.approx(cam.mean() / v3.mean(), abs=1e-3)
+        # the jar moves along x: its amplitude and the axial approach speed foreshorten
+        assert eff.factor_of("jar_amplitude_m", 50.0) == pytest.approx(np.cos(alpha))
+        assert eff.factor_of("v_in_m_s", 50.0) == pytest.approx(np.cos(alpha))
+        for o in ("f_col_hz", "e_app", "impact_phase_rad", "vy_rms_m_s"):
+            assert eff.factor_of(o, 50.0) == 1.0
+
+
+def test_collision_count_factor_is_the_sign_changes_of_a_noisy_smoothed_vx():
+    """Simulated truth: a ping-pong v_x = +-V (1000 flips, jittered intervals about
+    1 / 50 s) through a moving average of width tau = 2 ms, plus stationary Gaussian noise of
+    known rms rate of change sigma' (white noise through a Gaussian kernel, sigma' measured on
+    the samples); the sign changes per flip counted on 100 kHz samples, over four noise draws,
+    against the effect's factor at b = sigma' tau / 2 and the ball's speed V: the count excess
+    falls with V at a fixed b."""
+    from scipy.ndimage import gaussian_filter1d, uniform_filter1d
+    fs, tau_n, f_col, dur = 100_000.0, 201, 50.0, 20.0
+    tau, n = tau_n / fs, int(dur * fs)
+    cases = [(1.0, 2.0), (1.0, 1.0), (1.5, 1.0)]     # (b [m/s], V [m/s]): b / V 0.5, 1, 1.5
+    counts = {c: [] for c in cases}
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        tf = np.cumsum(rng.uniform(0.8, 1.2, int(dur * f_col) + 5) / f_col)
+        tf = tf[tf < dur - 0.05]
+        flips = np.zeros(n)
+        flips[(tf * fs).astype(int)] = 1.0
+        sm = uniform_filter1d(np.where(np.cumsum(flips) % 2 == 0, 1.0, -1.0), tau_n,
+                              mode="wrap")
+        w = gaussian_filter1d(rng.standard_normal(n), 10.0, mode="wrap")
+        w /= np.std(np.diff(w)) * fs                       # sigma' = 1 m/s^2 per unit
+        for b, V in cases:
+            x = V * sm + w * (2.0 * b / tau)
+            counts[(b, V)].append(np.count_nonzero(np.signbit(x[1:]) != np.signbit(x[:-1]))
+                                  / len(tf))
+    # measured: 1.009, 1.168, 1.453 per flip (eight draws, se 0.002, 0.005, 0.010) against the
+    # factor's 1.0085, 1.1666, 1.4534
+    for (b, V), tol in zip(cases, (0.01, 0.03, 0.05)):
+        eff = effects.load_effects({"collision_count": {"flip_noise_m_s": b}},
+                                   side="observation")[0]
+        fac = float(eff.factor_of("f_col_hz", f_col, v_mean_m_s=V))
+        assert fac == pytest.approx(np.mean(counts[(b, V)]), abs=tol)
+        assert eff.factor_of("v_mean_m_s", f_col, v_mean_m_s=V) == 1.0
+    assert np.mean(counts[(1.5, 1.0)]) > 1.3                # the noise does add counts
+    null = effects.load_effects({"collision_count": {"flip_noise_m_s": 0.0}},
+                                side="observation")[0]
+    assert null.factor_of("f_col_hz", f_col) == 1.0

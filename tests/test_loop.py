@@ -541,7 +541,8 @@ def test_observation_effects_act_on_the_emulators_predictions_not_on_the_twin(tm
         "obs", {}, conditions=NEW_CONDITIONS, replicates=1, seed=5, runner=run_fake_twin,
         runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth",
         twin_v_rel_sd=0.004, twin_f_col_sd_hz=0.3, progress=False, v_rel_sd=0.005)
-    settings = loop.LoopSettings(points=8, extra_effects=("apparent_scale", "smoothing_window"))
+    settings = loop.LoopSettings(points=8, extra_effects=("apparent_scale", "smoothing_window",
+                                                          "collision_count", "camera_plane"))
     state = loop.read_stage(load_dataset(ds_dir), settings, track=False, log=lambda s: None)
     m = state.model
     assert not any("smoothing" in n or "apparent" in n for n in m.space.names)
@@ -564,6 +565,20 @@ def test_observation_effects_act_on_the_emulators_predictions_not_on_the_twin(tm
         assert p1[(c, "f_col_hz")] == p2[(c, "f_col_hz")] == p0[(c, "f_col_hz")]
     ys = [k for k in p0.index if k[1].startswith("yield_pct")]
     assert ys and np.allclose(p1[ys], p0[ys]) and np.allclose(p2[ys], p0[ys])
+    # factors that read the twin's state: the emulator's own speed at each condition
+    from effects.collision_count import crossings_per_flip
+    b, alpha = 1.2, 0.15
+    p3 = m.predict(theta, {"collision_count": b})
+    p4 = m.predict(theta, {"camera_plane": (alpha / 0.2) ** 2})
+    for c in NEW_CONDITIONS["condition_id"]:
+        fac = float(crossings_per_flip(b / p0[(c, "v_mean_m_s")]))
+        assert fac > 1.0
+        assert p3[(c, "f_col_hz")] == pytest.approx(p0[(c, "f_col_hz")] * fac, rel=1e-12)
+        assert p3[(c, "v_mean_m_s")] == p0[(c, "v_mean_m_s")]
+        # no jar tracks here, so no vertical rms: the foreshortened axial speed alone
+        assert p4[(c, "v_mean_m_s")] == pytest.approx(p0[(c, "v_mean_m_s")] * np.cos(alpha),
+                                                      rel=1e-12)
+    assert np.allclose(p3[ys], p0[ys]) and np.allclose(p4[ys], p0[ys])
     with pytest.raises(ValueError, match="not an observation effect"):
         type(m)(m.conditions, m.space, observation=("end_fillet",))
 

@@ -199,6 +199,56 @@ def test_bad_optional_files(ds_dir):
     assert load_dataset(ds_dir).video["m_per_px"] == 3e-4
 
 
+def test_video_json_states_the_observation_chain(ds_dir):
+    """video.json's optional keys for the observation chain: validated with the file and key
+    named, exposed as Dataset.observation_chain, and the effects they pin (observation_pins);
+    a video.json without films is allowed (it describes how the dataset's speeds were made)."""
+    from analysis.measurements import observation_pins
+    vdir = ds_dir / "videos"
+    vdir.mkdir()
+    base = {"fps": 2134, "ball_diameter_px": 70}
+
+    def write(**extra):
+        (vdir / "video.json").write_text(json.dumps(dict(base, **extra)))
+
+    for extra, phrase in [
+            ({"exposure_s": -1e-6}, "'exposure_s' must be a number >= 0"),
+            ({"exposure_s": "100us"}, "'exposure_s' must be a number >= 0"),
+            ({"exposure_s": 100.0}, "longer than the frame interval"),
+            ({"smoothing_window_frames": 7.5}, "'smoothing_window_frames' must be a whole"),
+            ({"smoothing_window_frames": 0}, "'smoothing_window_frames' must be a whole"),
+            ({"smoothing_window_frames": True}, "'smoothing_window_frames' must be a whole"),
+            ({"smoothing_polyorder": 2}, "needs 'smoothing_window_frames'"),
+            ({"smoothing_window_frames": 7, "smoothing_polyorder": -1}, "'smoothing_polyorder'"),
+            ({"smoothing_window_frames": 5, "smoothing_polyorder": 5}, "must be less than"),
+            ({"scale_method": "ruler"}, "'scale_method' must be one of 'apparent_diameter'")]:
+        write(**extra)
+        with pytest.raises(DatasetError, match=r"videos/video.json: .*" + phrase):
+            load_dataset(ds_dir)
+    write(exposure_s=1 / 2134, smoothing_window_frames=7, smoothing_polyorder=2,
+          scale_method="calibration_target", camera="Chronos 1.4")     # unknown key: kept
+    ds = load_dataset(ds_dir)
+    assert ds.observation_chain == {"fps": 2134, "exposure_s": 1 / 2134,
+                                    "smoothing_window_frames": 7, "smoothing_polyorder": 2,
+                                    "scale_method": "calibration_target"}
+    assert ds.video["camera"] == "Chronos 1.4"
+    pins = observation_pins(ds.video)
+    assert pins["smoothing_window"]["window_s"] == pytest.approx(0.3 * 7 / 2134)
+    assert pins["frame_rate"] == {"frame_interval_s": 0.0, "exposure_s": 0.0}
+    assert pins["apparent_scale"] == {"blur_fraction": 0.0}
+    import effects
+    for name, params in pins.items():                      # every pin is a valid setting
+        effects.validate(name, params)
+    raw = observation_pins(dict(base, smoothing_window_frames=1, exposure_s=2e-4,
+                                scale_method="apparent_diameter"))
+    assert raw == {"frame_rate": {"frame_interval_s": 1 / 2134, "exposure_s": 2e-4},
+                   "smoothing_window": {"window_s": 0.0}}
+    assert observation_pins(dict(base, smoothing_window_frames=9, smoothing_polyorder=1)) \
+        ["smoothing_window"] == {"window_s": 9 / 2134}
+    assert observation_pins(dict(base, smoothing_window_frames=9)) == {}
+    assert observation_pins(None) == {} and load_dataset(PAPER_TABLE3_DIR).observation_chain == {}
+
+
 def test_missing_files(tmp_path, ds_dir):
     with pytest.raises(DatasetError, match="not found"):
         load_dataset(tmp_path / "nope")
