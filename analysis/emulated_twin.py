@@ -77,6 +77,9 @@ class EmulatedTwin:
     seed : int - the hyperparameter optimiser's seed
     observation : names of the observation effects diagnosed (catalog kind 'observation':
         the measurement chain; applied to the assembled prediction, never a design input)
+    pinned : {effect name: {parameter: value}} - observation effects whose parameters the
+        dataset states (videos/video.json: :func:`analysis.measurements.observation_pins`),
+        applied to every prediction; a pinned effect is not diagnosed
 
     Attributes (after :meth:`fit`)
     ----------
@@ -87,7 +90,7 @@ class EmulatedTwin:
 
     def __init__(self, conditions, space: DesignSpace, *, velocity_frame="lab",
                  flight_conditions=(), yield_times_min=None, theta_ref=None, seed=0,
-                 observation=()):
+                 observation=(), pinned=None):
         self.conditions = conditions.reset_index(drop=True)
         self.space = space
         if velocity_frame not in SPEED_COLUMN:
@@ -107,6 +110,16 @@ class EmulatedTwin:
         if bad:
             raise ValueError("not an observation effect: %s (observation effects: %s)"
                              % (", ".join(bad), ", ".join(obs_c) or "none"))
+        self.pinned = {k: dict(v) for k, v in (pinned or {}).items()}
+        both = [n for n in observation if n in self.pinned]
+        if both:
+            raise ValueError("observation effect(s) %s are pinned by the dataset and cannot "
+                             "also be diagnosed" % ", ".join(both))
+        from effects import load_effects
+        self._pinned_objs = load_effects(self.pinned, side="observation")
+        if len(self._pinned_objs) != len(self.pinned):
+            raise ValueError("pinned effects must be observation effects: %s"
+                             % ", ".join(sorted(self.pinned)))
         self.observation = {n: obs_c[n] for n in observation}
         #: the emulator's mean is a smooth function: two predictions share their noise
         #: (diagnose's finite differences carry none)
@@ -354,14 +367,17 @@ class EmulatedTwin:
         return J @ S @ J.T
 
     def _observed(self, parts, effects):
-        """(stacked observables x conditions) factors of the observation effects switched on
-        in ``effects``, None without (the hot path: most predictions have none): the
-        measurement chain reports the twin's value times this; the yields (the chemistry sees
-        the true speed) are not touched."""
+        """(stacked observables x conditions) factors of the observation effects: those the
+        dataset pins (:attr:`pinned`) and those switched on in ``effects``; None without any
+        (the hot path: most predictions have none). The measurement chain reports the twin's
+        value times this; the yields (the chemistry sees the true speed) are not touched."""
         on = [k for k, v in (effects or {}).items() if k in self.observation and v]
-        if not on:
+        if not on and not self._pinned_objs:
             return None
         from effects import load_effects
+        objs = list(self._pinned_objs) + [
+            load_effects(self.observation[k].spec(effects[k]), side="observation")[0]
+            for k in on]
         names = ("v_mean_m_s", "f_col_hz") + self.flight_obs
         fac = np.ones((len(names), len(self._X_cond)))
         f_col = parts["f_col_hz"].mean[0]
@@ -371,8 +387,7 @@ class EmulatedTwin:
                  "frequency_hz": self._X_cond["frequency_hz"].to_numpy(float),
                  "ball_diameter_m": self._X_cond["ball_diameter_m"].to_numpy(float)}
         state.update({o: parts[o].mean[0] for o in self.flight_obs})
-        for k in on:
-            e = load_effects(self.observation[k].spec(effects[k]), side="observation")[0]
+        for e in objs:
             for j, o in enumerate(names):
                 fac[j] *= e.factor_of(o, f_col, **state)
         return fac

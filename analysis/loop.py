@@ -479,6 +479,11 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
                q.scale_source, " [cached]" if q.cached else "") for q in tracking.itertuples())))
         dataset = dataclasses.replace(dataset, tracks=dict(dataset.tracks, **tracks))
     obs0, fl_ids, _ = dataset_observations(dataset, settings.flights)
+    pins = pinned_observation(dataset)
+    for n in settings.extra_effects:
+        if n in pins:
+            log("%s: pinned by videos/video.json (%s), applied to every prediction, not "
+                "diagnosed" % (n, ", ".join("%s %g" % kv for kv in pins[n].items())))
     space = loop_space(dataset, settings.extra_effects, settings.free, settings.base)
     ref = dict(apparatus_reference(base_config), **reference_parameters())
     ref = {p.name: float(np.clip(ref.get(p.name, np.mean(p.prior)), *p.prior))
@@ -487,7 +492,9 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
                          flight_conditions=fl_ids, yield_times_min=yield_times_of(dataset),
                          theta_ref=ref, seed=settings.seed,
                          observation=[n for n in settings.extra_effects
-                                      if candidates()[n].kind == "observation"])
+                                      if candidates()[n].kind == "observation"
+                                      and n not in pins],
+                         pinned=pins)
     asked = set(settings.base) | {n for n, _, _ in settings.free}
     if "amplitude_m" in asked and "amplitude_m" not in space.base_names:
         model.held["amplitude_m"] = "stated by the dataset"
@@ -847,6 +854,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
                                               r["amplitude_mm"]))
                            for r in phys.drop(columns=["physics_key"]).to_dict("records")],
             "reference_point": model.theta_ref, "model": "emulator",
+            "pinned_observation": model.pinned,
             "settings": dataclasses.asdict(state.settings),
             "waves": {str(k): v for k, v in state.waves.items()},
             "n_model_runs": int(len(model.runs_)), "new_runs": int(new_runs),
@@ -1000,6 +1008,27 @@ def optional_effects(names, base_config=None):
         if n not in out:
             out.append(n)
     return out
+
+
+def pinned_observation(dataset) -> dict:
+    """The observation effects ``dataset``'s videos/video.json pins
+    (:func:`analysis.measurements.observation_pins`: {effect: {parameter: value}}), each
+    checked against its declared bounds. The loop applies them to every prediction and does
+    not diagnose them.
+
+    Raises
+    ------
+    ValueError - a pinned value outside the effect's declared bounds (named)
+    """
+    from analysis.measurements import observation_pins
+    from effects import load_effects
+    pins = observation_pins(dataset.observation_chain)
+    for name, params in pins.items():
+        try:
+            load_effects({name: params}, side="observation")
+        except ValueError as exc:
+            raise ValueError("videos/video.json pins %s %s: %s" % (name, params, exc))
+    return pins
 
 
 def with_assumed_v_sd(dataset, v_rel_sd):
@@ -1501,6 +1530,7 @@ def _main(argv=None):
         for line in ds.warnings:            # accepted, but outside what the twin is tested on
             print("analysis.loop: warning: %s" % line, file=sys.stderr)
         physics_table(ds.conditions)
+        pinned_observation(ds)              # a stated chain outside its bounds: before any run
         if a.v_rel_sd is not None:
             ds = with_assumed_v_sd(ds, a.v_rel_sd)
         _, max_effects = dof_limits(ds, a.max_effects, extra, free)

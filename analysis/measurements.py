@@ -572,7 +572,8 @@ def observation_pins(video) -> dict:
     - ``scale_method`` ``calibration_target``: apparent_scale at 0 (no apparent diameter);
       ``apparent_diameter`` pins nothing (the blur stays free).
 
-    None or {} gives {}. The loop does not read these yet.
+    None or {} gives {}. The loop applies these to every prediction and does not diagnose
+    them (:func:`analysis.loop.pinned_observation`).
     """
     if not video:
         return {}

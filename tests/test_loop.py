@@ -583,6 +583,57 @@ def test_observation_effects_act_on_the_emulators_predictions_not_on_the_twin(tm
         type(m)(m.conditions, m.space, observation=("end_fillet",))
 
 
+def test_a_chain_stated_in_video_json_is_applied_to_every_prediction_not_diagnosed(tmp_path):
+    """videos/video.json stating a Savitzky-Golay window (31 frames, order 2, 2134 fps) pins
+    smoothing_window at 0.3 x 31 / 2134 s and frame_rate at 0: the loop's model applies it to
+    every prediction (the smoothed speed v (1 - f_col tau / 2), f_col and the yields
+    untouched), does not diagnose it even when asked, and records it; a stated chain outside
+    an effect's bounds is refused before any run."""
+    import dataclasses
+    from analysis.hidden import make_hidden_dataset
+    from analysis.measurements import SAVGOL_TAU_FRACTION
+    ds_dir, _ = make_hidden_dataset(
+        "pin", {}, conditions=NEW_CONDITIONS, replicates=1, seed=6, runner=run_fake_twin,
+        runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth",
+        twin_v_rel_sd=0.004, twin_f_col_sd_hz=0.3, progress=False, v_rel_sd=0.005)
+    video = {"fps": 2134.0, "ball_diameter_px": 40.0, "smoothing_window_frames": 31,
+             "smoothing_polyorder": 2}
+    ds = dataclasses.replace(load_dataset(ds_dir), video=video)
+    tau = SAVGOL_TAU_FRACTION * 31 / 2134.0
+    assert loop.pinned_observation(ds)["smoothing_window"] == {"window_s": pytest.approx(tau)}
+    lines = []
+    settings = loop.LoopSettings(points=8, extra_effects=("smoothing_window", "apparent_scale"))
+    state = loop.read_stage(ds, settings, track=False, log=lines.append)
+    m = state.model
+    assert "smoothing_window" in m.pinned and "smoothing_window" not in m.observation
+    assert "apparent_scale" in m.observation           # not pinned: still a candidate
+    assert any("pinned by videos/video.json" in ln for ln in lines)
+    free = loop.read_stage(load_dataset(ds_dir), settings, track=False, log=lambda s: None).model
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
+                    progress=False)
+    runs = twin(loop.wave0_runs(state))
+    m.fit(runs)
+    free.fit(runs)
+    theta = dict(m.theta_ref)
+    p_pin, p_free = m.predict(theta), free.predict(theta)
+    p_on = free.predict(theta, {"smoothing_window": tau})
+    for c in NEW_CONDITIONS["condition_id"]:
+        fac = 1.0 - p_free[(c, "f_col_hz")] * tau / 2.0
+        assert fac < 0.99
+        assert p_pin[(c, "v_mean_m_s")] == pytest.approx(p_free[(c, "v_mean_m_s")] * fac,
+                                                         rel=1e-12)
+        assert p_pin[(c, "v_mean_m_s")] == pytest.approx(p_on[(c, "v_mean_m_s")], rel=1e-12)
+        assert p_pin[(c, "f_col_hz")] == pytest.approx(p_free[(c, "f_col_hz")], rel=1e-12)
+    ys = [k for k in p_pin.index if k[1].startswith("yield_pct")]
+    assert ys and np.allclose(p_pin[ys], p_free[ys])
+    # a window the effect's bounds do not allow (10 frames at 400 fps: 7.5 ms moving average
+    # equivalent is allowed; 401 frames at 2134 fps with order 1 is 0.19 s > 0.02 s)
+    bad = dataclasses.replace(ds, video=dict(video, smoothing_window_frames=401,
+                                             smoothing_polyorder=1))
+    with pytest.raises(ValueError, match="video.json pins smoothing_window"):
+        loop.pinned_observation(bad)
+
+
 def test_the_focus_waves_ridge_is_the_profile_of_the_base_parameters():
     """The ridge a focus wave follows, against analytic truth: speeds v_c = a_c e (1 - k s) and
     a rate pinned by the stroke, noise-free data made at (e 0.5, A 12 mm, s 0): at any held

@@ -71,6 +71,12 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
     qw = quoted_words(stair) if len(stair) else ""
     if qw:
         md += [qw, ""]
+    pins = i.get("pinned_observation") or {}
+    if pins:
+        md += ["The measurement chain as videos/video.json states it, applied to every "
+               "prediction and not diagnosed: %s." % "; ".join(
+                   "%s (%s)" % (k, ", ".join("%s %g" % kv for kv in v.items()))
+                   for k, v in pins.items()), ""]
     md += ["Velocity frame: %s. Conditions (matched by physics):" % i["velocity_frame"], ""]
     md += ["- %s: %s" % (c["condition_id"], c["label"]) for c in i["conditions"]]
     if i.get("tracking"):
