@@ -342,7 +342,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
     """
     theta = dict(theta)
     added, diags, step_rows, stairs, last_fit = {}, [], [], [], None
-    nulls = []
+    nulls, need = [], {}
     nb = len(model.base_params())
     for step in range(1, max_effects + 2):
         w = WithAdded(model, added, theta)
@@ -362,6 +362,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         t = diag.table.copy()
         t.insert(0, "step", step)
         t["threshold_scale"] = 1.0
+        scale = 1.0
         if diag.best is not None and null_draws:
             c, nm, nf = null_scale(diag, w, obs, fitted_parameters(model, theta, added), effs,
                                    n_draws=null_draws, alpha=alpha, conditions=conditions,
@@ -369,20 +370,20 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                                    n_jobs=n_jobs)
             nulls.append({"step": step, "scale": c, "null_max_delta_chi2": nm,
                           "n_false": nf, "n_draws": null_draws})
-            t["threshold_scale"] = c
-            need = c * diag.threshold_delta_chi2
-            keep = t["significant"] & (t["delta_chi2"] > need)
+            t["threshold_scale"] = scale = c
+            needed = c * diag.threshold_delta_chi2
+            keep = t["significant"] & (t["delta_chi2"] > needed)
             if not keep.any():
                 log("step %d: %s does not beat the bootstrap-calibrated threshold (chi2 gain "
                     "%.1f, needed %.1f = %.2f x nominal; %d of %d null draws named an effect)"
                     % (step, diag.best, float(t.loc[t["effect"] == diag.best, "delta_chi2"]
-                                              .iloc[0]), need, c, nf, null_draws))
+                                              .iloc[0]), needed, c, nf, null_draws))
                 t["significant"] = False
                 diag.verdict = ("nothing beyond the bootstrap-calibrated threshold: %s gains "
                                 "chi2 %.1f, %.1f needed (%d of %d datasets drawn from the fit "
                                 "without it named an effect at the nominal level)"
                                 % (diag.best, float(t.loc[t["effect"] == diag.best,
-                                                          "delta_chi2"].iloc[0]), need, nf,
+                                                          "delta_chi2"].iloc[0]), needed, nf,
                                    null_draws))
                 diag.best = None
                 diag.status = "nothing_beyond_bootstrap"
@@ -396,6 +397,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         if diag.best is None or step > max_effects:
             break
         fit = diag.fits[diag.best]
+        need[diag.best] = scale * diag.threshold_delta_chi2
         added[diag.best] = float(fit.params[diag.best])
         theta = {k: float(fit.params[k]) for k in theta}
         for k in list(added):
@@ -404,7 +406,39 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
         last_fit = fit
         stairs.append(_stage_row("+ " + diag.best, fit, nb + len(added)))
     return {"added": added, "diagnoses": diags, "steps": step_rows, "stairs": stairs,
-            "last_fit": last_fit, "theta": theta, "null": nulls}
+            "last_fit": last_fit, "theta": theta, "null": nulls, "need": need}
+
+
+def prune_effects(model, obs, theta, added, need, log=print):
+    """Backward elimination on a refitted model: each effect in ``added`` must still gain
+    what it needed when it was added (``need``: its step's chi2-gain threshold, the bootstrap's
+    scale included) against the fit without it; the weakest that does not is dropped and the
+    rest checked again. An effect that compensated another's wrong strength on an emulator
+    that has since learned from twin runs there (a decoy) goes; the strength of one that
+    stays is refitted. Returns (theta, added, fit, dropped) with ``dropped`` a list of
+    {"effect", "delta_chi2", "needed"} and ``fit`` the joint fit at the end."""
+    theta, added = dict(theta), dict(added)
+    fit = joint_fit(model, obs, theta, added)
+    dropped = []
+    while added:
+        base = {k: float(fit.params[k]) for k in theta}
+        trial = {}
+        for k in added:
+            rest = {j: float(fit.params[j]) for j in added if j != k}
+            f = joint_fit(model, obs, base, rest)
+            trial[k] = (max(f.objective - fit.objective, 0.0), f)
+        k = min(trial, key=lambda j: trial[j][0] - need.get(j, 0.0))
+        gain, f = trial[k]
+        if gain >= need.get(k, 0.0):
+            break
+        log("%s dropped: on the refitted emulator it gains chi2 %.1f, %.1f needed"
+            % (k, gain, need.get(k, 0.0)))
+        dropped.append({"effect": k, "delta_chi2": gain, "needed": float(need.get(k, 0.0))})
+        added = {j: float(f.params[j]) for j in added if j != k}
+        theta = {j: float(f.params[j]) for j in theta}
+        fit = f
+    return ({k: float(fit.params[k]) for k in theta},
+            {k: float(fit.params[k]) for k in added}, fit, dropped)
 
 
 # --------------------------------------------------------------------------- the state
@@ -430,6 +464,7 @@ class LoopState:
     added: dict = field(default_factory=dict)       # effect -> strength, in the order added
     final: object = None             # the last fit
     reruns: list = field(default_factory=list)      # per round: point, runs, score, moved_se
+    dropped: list = field(default_factory=list)     # effects dropped after a rerun (prune)
     focus: dict = field(default_factory=dict)       # the focus wave: its centre, runs, before
     intervals: dict = field(default_factory=dict)   # name -> ProfileInterval
     tracking: pd.DataFrame | None = None
@@ -756,16 +791,18 @@ def confirm_stage(state: LoopState, twin, log=print):
                             "p_value": float(stats.chi2.sf(score["chi2"], max(score["dof"], 1))),
                             "n_params": n_par})
         m.fit(pd.concat([m.runs_, runs], ignore_index=True))
-        refit = joint_fit(m, state.obs, state.theta, state.added)
-        moved = fitted_moves(state.final, refit)
+        theta, added, refit, dropped = prune_effects(m, state.obs, state.theta, state.added,
+                                                     state.selection.get("need", {}), log)
+        moved = fitted_moves(state.final, refit) if not dropped else math.inf
+        state.dropped += [dict(d, round=r + 1) for d in dropped]
         state.reruns.append({"round": r + 1, "point": dict(state.theta, **state.added),
                              "runs": runs, "score": score, "moved_se": moved})
-        state.stair.append(_stage_row("refitted on the twin reruns", refit, n_par))
-        log("refitted with the rerun's runs: chi2/dof %.2f, the point moved %.2f se"
-            % (refit.chi2_dof, moved))
-        state.final = refit
-        state.theta = {k: float(refit.params[k]) for k in state.theta}
-        state.added = {k: float(refit.params[k]) for k in state.added}
+        state.stair.append(_stage_row("refitted on the twin reruns", refit,
+                                      state.n_base + len(added)))
+        log("refitted with the rerun's runs: chi2/dof %.2f, %s"
+            % (refit.chi2_dof, "the point moved %.2f se" % moved if not dropped else
+               "without %s" % ", ".join(d["effect"] for d in dropped)))
+        state.final, state.theta, state.added = refit, theta, added
         missed = score["emulator_vs_twin"]["p"] < COVER_P
         if (moved < CONFIRM_TOL_SE and not missed) or r + 1 == s.confirm_rounds:
             break
@@ -845,7 +882,8 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
         comp["twin_rerun"] = rr["prediction"].to_numpy(float)
         comp["z_twin_rerun"] = rr["z"].to_numpy(float)
     status, verdict = _verdict_words(fs["diagnoses"], state.added, eff_se, cal, final, rr,
-                                     dataset, model, state.settings.alpha, parameters)
+                                     dataset, model, state.settings.alpha, parameters,
+                                     state.dropped)
     phys = physics_table(dataset.conditions)
     reruns = (pd.concat([r["runs"] for r in state.reruns], ignore_index=True)
               if state.reruns else None)
@@ -861,7 +899,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
             "wall_s": wall_s, "flight_conditions": state.flight_ids,
             "alpha": state.settings.alpha,
             "tracking": None if state.tracking is None else state.tracking.to_dict("records"),
-            "bootstrap": fs["null"], "focus": state.focus,
+            "bootstrap": fs["null"], "focus": state.focus, "dropped": state.dropped,
             "failed_runs": ([] if failed is None or not len(failed) else
                             failed[[c for c in ("run_id", "error", "wave", "point",
                                                 "condition_id", "seed") if c in failed]]
@@ -1117,7 +1155,7 @@ def _diagnosis_table(steps, added, eff_se):
 
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
-                   parameters=None):
+                   parameters=None, dropped=()):
     from analysis.report.loop_words import is_constrained, prior_sd, spread_of, \
         stated_stroke_words
     head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
@@ -1152,6 +1190,10 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                      if status == "nothing_missing" else
                      "no candidate effect explains the misfit (%s, p = %.2g)"
                      % (head, cal.p_value))
+    for d in dropped:
+        parts.append("%s, named before the twin reruns, dropped after them: on the emulator "
+                     "refitted with their runs it gains chi2 %.1f, %.1f needed"
+                     % (d["effect"], d["delta_chi2"], d["needed"]))
     if added and final.p_value < alpha:
         status = "effects_partial"
         parts.append("what stays unexplained: chi2/dof %.2f (p = %.2g) after the effects found"

@@ -634,6 +634,68 @@ def test_a_chain_stated_in_video_json_is_applied_to_every_prediction_not_diagnos
         loop.pinned_observation(bad)
 
 
+def _two_effect_model():
+    """Speeds v_c = g_c e (1 + a_c s_A) (1 + b_c s_B), a rate pinned by the stroke: A and B
+    tilt the conditions differently (neither is a common scale of the restitution) - both
+    identifiable, noise 0.5 %."""
+    conds = ["a", "b", "c", "d"]
+    gain = np.array([1.0, 1.3, 1.7, 2.1])
+    tilt = np.array([-0.3, 0.0, 0.2, 0.5])
+    bump = np.array([0.5, -0.4, -0.3, 0.4])
+    keys = pd.MultiIndex.from_product([conds, ["v_mean_m_s", "f_col_hz"]],
+                                      names=["condition_id", "observable"])
+
+    class Analytic:
+        def base_params(self):
+            return [BaseParameter("restitution", 0.5, 0.1, 0.95),
+                    BaseParameter("amplitude_m", 0.012, 0.010, 0.014)]
+
+        def effects(self):
+            return [Effect("A", 0.0, 2.0), Effect("B", 0.0, 2.0)]
+
+        def predict(self, theta, effects=None):
+            e = dict(effects or {})
+            v = (gain * theta["restitution"] * (1 + bump * e.get("A", 0.0))
+                 * (1 + tilt * e.get("B", 0.0)))
+            f = 1e3 * theta["amplitude_m"] * gain
+            return pd.Series(np.column_stack([v, f]).ravel(), index=keys)
+
+        def model_se(self, theta=None):
+            return pd.Series(0.0, index=keys)
+
+        def resolution_se(self, effects):
+            return pd.Series(0.0, index=keys)
+
+    def data(effects):
+        truth = Analytic().predict({"restitution": 0.5, "amplitude_m": 0.012}, effects)
+        return pd.DataFrame({"condition_id": keys.get_level_values(0),
+                             "observable": keys.get_level_values(1),
+                             "value": truth.to_numpy(), "sd": 0.005 * truth.to_numpy()})
+    return Analytic(), data
+
+
+def test_an_effect_whose_gain_is_gone_after_the_refit_is_dropped():
+    """Backward elimination against analytic truth: data made with B alone, the fit handed
+    both (A at a wrong strength, as a decoy beside a mis-set B): B is kept with its true
+    strength, A, which gains nothing once B is right, is dropped; data made with both keep
+    both."""
+    model, data = _two_effect_model()
+    need = {"A": 9.0, "B": 9.0}
+    theta0 = {"restitution": 0.45, "amplitude_m": 0.012}
+    theta, added, fit, dropped = loop.prune_effects(model, data({"B": 0.8}), theta0,
+                                                    {"B": 0.5, "A": 0.3}, need,
+                                                    log=lambda s: None)
+    assert [d["effect"] for d in dropped] == ["A"]
+    assert dropped[0]["delta_chi2"] < 1.0 and dropped[0]["needed"] == 9.0
+    assert list(added) == ["B"] and added["B"] == pytest.approx(0.8, abs=1e-3)
+    assert theta["restitution"] == pytest.approx(0.5, rel=1e-3)
+    theta, added, fit, dropped = loop.prune_effects(model, data({"B": 0.8, "A": 0.5}), theta0,
+                                                    {"B": 0.5, "A": 0.3}, need,
+                                                    log=lambda s: None)
+    assert dropped == [] and set(added) == {"A", "B"}
+    assert added["A"] == pytest.approx(0.5, abs=1e-2)
+
+
 def test_the_focus_waves_ridge_is_the_profile_of_the_base_parameters():
     """The ridge a focus wave follows, against analytic truth: speeds v_c = a_c e (1 - k s) and
     a rate pinned by the stroke, noise-free data made at (e 0.5, A 12 mm, s 0): at any held
