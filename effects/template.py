@@ -9,7 +9,8 @@ from effects import base
 
 DECLARATION = {
     "name": "template",                # = the file name without .py
-    "kind": "dem",                     # 'dem' (YADE scene) or 'kinetics' (yield model)
+    "kind": "dem",                     # 'dem' (YADE scene), 'kinetics' (yield model) or
+                                       # 'observation' (the measurement chain)
     "physics": "one line: the effect and its formula",
     "parameters": {                    # every parameter: SI units, physical bounds
         "strength": {"default": 1.0, "lower": 0.0, "upper": 10.0, "unit": "-",
@@ -60,3 +61,15 @@ class Effect(base.Effect):
 #
 # class Effect(base.KineticsEffect):
 #     modify = staticmethod(modify_kinetics)
+#
+# --- an observation effect instead (the measurement chain: no twin run, no design input):
+# set "kind": "observation", "optional": True in "diagnose", delete the classes above and write
+#
+# def observed_factor(observable, f_col_hz, params, v_mean_m_s=None):
+#     """The factor by which the chain reports the twin's true ``observable`` at each
+#     condition (numpy); name only the keywords of the twin's state you need (v_mean_m_s,
+#     frequency_hz, ball_diameter_m, the impact observables: effects.base.ObservationEffect)."""
+#     ...
+#
+# class Effect(base.ObservationEffect):
+#     factor = staticmethod(observed_factor)
