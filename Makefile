@@ -12,7 +12,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
-        loop open-world calibrate apparatus emulator-check vf-study
+        loop open-world calibrate apparatus emulator-check vf-study table3-chain
 
 help:
 	@echo "make demo   - the twin on Table 3, then the loop (calibrate, diagnose and add, twin rerun) -> results/demo/README.md, results/demo/loop/"
@@ -23,6 +23,7 @@ help:
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
 	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 2-3 h on 1 worker; cached, resumable) -> results/studies/vf_trend/"
+	@echo "make table3-chain - the loop on Table 3 with the measurement chain among its candidates, at assumed v sds of 0.5, 1 and 2 % (about 1 h each on 1 worker from the committed runs) -> results/table3_chain/"
 	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 + held-out runs; about 1.5 h on 2 cores) -> results/studies/emulator_check/"
 	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"
 	@echo "make geometry | facet-study | timestep-study - regenerate committed studies"
@@ -159,6 +160,17 @@ apparatus: setup
 # run, the same command resumes (--dry-run: what is cached)
 vf-study: setup
 	$(VPY) -m analysis.studies.vf_trend --out results/studies/vf_trend --workers 1 --seeds 3
+
+# the loop on Table 3 with the measurement chain (docs/loop.md: smoothing window, frame rate,
+# length scale, camera plane, collision count; no twin run of their own) among its candidates,
+# at assumed v sds of 0.5, 1 and 2 % -> results/table3_chain/sd<pct>/ (issue 26)
+CHAIN = --with-effect apparent_scale --with-effect smoothing_window --with-effect frame_rate \
+        --with-effect camera_plane --with-effect collision_count
+table3-chain: setup
+	for sd in 0.01 0.005 0.02; do \
+	  $(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --workers 1 \
+	    --v-rel-sd $$sd $(CHAIN) --out results/table3_chain/sd$$sd || exit $$?; \
+	done
 
 # one Markdown page per study folder in results/ and the index results/README.md
 report: venv

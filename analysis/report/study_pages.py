@@ -59,6 +59,9 @@ FOLDER_INDEX = {
              "`analysis.loop` (make loop)"),
     "open_world": ("the loop on blind open-world datasets whose truth is known, and the "
                    "datasets", "`analysis.open_suite` (make open-world)"),
+    "table3_chain": ("the loop on Table 3 with the measurement chain among its candidates, "
+                     "one folder per assumed v sd (sd0.005, sd0.01, sd0.02)",
+                     "`analysis.loop` (make table3-chain)"),
     "bench": ("timings: the loop from an empty cache, the scene's profile",
               "`analysis.bench.loop_cold` (make bench-loop), `analysis.bench.profile` "
               "(make bench-profile)"),
