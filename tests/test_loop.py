@@ -634,6 +634,18 @@ def test_a_chain_stated_in_video_json_is_applied_to_every_prediction_not_diagnos
         loop.pinned_observation(bad)
 
 
+def _speed_rate_keys(conds):
+    """(condition_id, observable) keys of an analytic model's speeds and rates."""
+    return pd.MultiIndex.from_product([conds, ["v_mean_m_s", "f_col_hz"]],
+                                      names=["condition_id", "observable"])
+
+
+def _restitution_and_stroke():
+    """The two base parameters of the analytic models below."""
+    return [BaseParameter("restitution", 0.5, 0.1, 0.95),
+            BaseParameter("amplitude_m", 0.012, 0.010, 0.014)]
+
+
 def _two_effect_model():
     """Speeds v_c = g_c e (1 + a_c s_A) (1 + b_c s_B), a rate pinned by the stroke: A and B
     tilt the conditions differently (neither is a common scale of the restitution) - both
@@ -642,13 +654,11 @@ def _two_effect_model():
     gain = np.array([1.0, 1.3, 1.7, 2.1])
     tilt = np.array([-0.3, 0.0, 0.2, 0.5])
     bump = np.array([0.5, -0.4, -0.3, 0.4])
-    keys = pd.MultiIndex.from_product([conds, ["v_mean_m_s", "f_col_hz"]],
-                                      names=["condition_id", "observable"])
+    keys = _speed_rate_keys(conds)
 
     class Analytic:
         def base_params(self):
-            return [BaseParameter("restitution", 0.5, 0.1, 0.95),
-                    BaseParameter("amplitude_m", 0.012, 0.010, 0.014)]
+            return _restitution_and_stroke()
 
         def effects(self):
             return [Effect("A", 0.0, 2.0), Effect("B", 0.0, 2.0)]
@@ -705,13 +715,11 @@ def test_the_focus_waves_ridge_is_the_profile_of_the_base_parameters():
     conds = ["a", "b", "c"]
     gain = np.array([1.0, 1.3, 1.7])
     k = 0.4
-    keys = pd.MultiIndex.from_product([conds, ["v_mean_m_s", "f_col_hz"]],
-                                      names=["condition_id", "observable"])
+    keys = _speed_rate_keys(conds)
 
     class Analytic:
         def base_params(self):
-            return [BaseParameter("restitution", 0.5, 0.1, 0.95),
-                    BaseParameter("amplitude_m", 0.012, 0.010, 0.014)]
+            return _restitution_and_stroke()
 
         def predict(self, theta, effects):
             s = float(effects.get("arc", 0.0))
