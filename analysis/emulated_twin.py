@@ -24,6 +24,7 @@ next_wave`), with no effect and with each candidate effect free in turn.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -45,7 +46,10 @@ STEEL_DENSITY_KG_M3 = 7800.0
 
 @runtime_checkable
 class TwinModelContract(Protocol):
-    """What the loop's calibration and diagnosis need of a model of the twin."""
+    """What the loop's calibration and diagnosis need of a model of the twin. ``theta`` and
+    ``effects`` are mappings name -> value: the loop passes
+    :class:`analysis.parameter_space.ParameterVector` (names, units and bounds), a test may
+    pass a plain dict."""
 
     theta_ref: dict
     flight_conditions: list
@@ -54,11 +58,11 @@ class TwinModelContract(Protocol):
 
     def effects(self) -> list: ...
 
-    def predict(self, theta: dict, effects: dict | None = None) -> pd.Series: ...
+    def predict(self, theta: Mapping, effects: Mapping | None = None) -> pd.Series: ...
 
-    def model_se(self, theta: dict | None = None) -> pd.Series: ...
+    def model_se(self, theta: Mapping | None = None) -> pd.Series: ...
 
-    def resolution_se(self, effects: dict) -> pd.Series: ...
+    def resolution_se(self, effects: Mapping) -> pd.Series: ...
 
     def flight_run_sd(self) -> pd.Series: ...
 
@@ -468,9 +472,11 @@ class EmulatedTwin:
         out = [BaseParameter(p.name, float(np.clip(self.theta_ref[p.name], *p.prior)),
                              *map(float, p.prior)) for p in self.space.base]
         if self.has_yields:
-            out += [BaseParameter("slope_pct_per_kj", kinetics.PAPER_SLOPE_PCT_PER_KJ, 1.0,
-                                  30.0),
-                    BaseParameter("intercept_pct", kinetics.PAPER_INTERCEPT_PCT, -20.0, 20.0)]
+            from analysis.parameter_space import KINETICS_LINE
+            start = {"slope_pct_per_kj": kinetics.PAPER_SLOPE_PCT_PER_KJ,
+                     "intercept_pct": kinetics.PAPER_INTERCEPT_PCT}
+            out += [BaseParameter(k, start[k], lo, hi)
+                    for k, (_, lo, hi) in KINETICS_LINE.items()]
         return out
 
     def effects(self):

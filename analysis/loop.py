@@ -90,7 +90,8 @@ from analysis.catalog import CANDIDATES, candidates
 from analysis.diagnose import (BaseParameter, calibrate_base, dataset_observations, diagnose,
                                with_run_sd)
 from analysis.measurements import DatasetError, load_dataset, yield_times_of
-from analysis.parameter_space import reference_parameters
+from analysis.parameter_space import (ParameterVector, coordinates_of,
+                                     reference_parameters)
 from analysis.sweep import parse_key_value
 from analysis.twin_runs import BudgetError, TwinRuns
 
@@ -322,6 +323,21 @@ def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observa
     return max(1.0, float(ratio)), null_max, n_false
 
 
+@dataclass
+class Selection:
+    """What forward selection found (:func:`forward_select`)."""
+
+    added: dict                      # effect -> strength, in the order added
+    theta: dict                      # the base parameters at the last addition's fit
+    diagnoses: list                  # one Diagnosis per step
+    steps: list                      # their tables, with a ``step`` column
+    stairs: list                     # staircase rows '+ <effect>'
+    last_fit: object = None          # the fit of the last addition (None: nothing added)
+    null: list = field(default_factory=list)   # per step: the bootstrap's threshold scale,
+    #                                   its draws' largest gains, false alarms
+    need: dict = field(default_factory=dict)   # effect -> the chi2 gain it needed when added
+
+
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
                    noise_observables=None, log=print, null_draws=0, n_jobs=1):
     """Forward selection of effects on a model with ``predict``, ``model_se``,
@@ -330,12 +346,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
     parameters), diagnose the rest again, until nothing more is significant or ``max_effects``
     are in.
 
-    Returns
-    -------
-    dict with 'added' (name -> strength, in order), 'diagnoses' (one Diagnosis per step),
-    'steps' (their tables with a ``step`` column), 'stairs' (staircase rows '+ <effect>'),
-    'last_fit' (the fit of the last addition, or None), 'theta' (base parameters there),
-    'null' (per step: the bootstrap's threshold scale, its draws' largest gains, false alarms)
+    Returns a :class:`Selection`.
 
     With ``null_draws`` > 0 an effect must also beat the nominal threshold scaled by
     :func:`null_scale` (the significance calibrated on data drawn from the fitted model).
@@ -405,8 +416,8 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                 added[k] = float(fit.params[k])
         last_fit = fit
         stairs.append(_stage_row("+ " + diag.best, fit, nb + len(added)))
-    return {"added": added, "diagnoses": diags, "steps": step_rows, "stairs": stairs,
-            "last_fit": last_fit, "theta": theta, "null": nulls, "need": need}
+    return Selection(added=added, theta=theta, diagnoses=diags, steps=step_rows,
+                     stairs=stairs, last_fit=last_fit, null=nulls, need=need)
 
 
 def prune_effects(model, obs, theta, added, need, log=print):
@@ -459,9 +470,9 @@ class LoopState:
     stair: list = field(default_factory=list)
     baseline: object = None          # FitResult at the reference point
     calibrated: object = None        # FitResult, base parameters fitted
-    selection: dict = field(default_factory=dict)   # forward_select's answer
-    theta: dict = field(default_factory=dict)       # base parameters at the final point
-    added: dict = field(default_factory=dict)       # effect -> strength, in the order added
+    selection: Selection | None = None  # forward_select's answer
+    theta: ParameterVector | None = None  # base parameters at the current point
+    added: ParameterVector | None = None  # effect -> strength, in the order added
     final: object = None             # the last fit
     reruns: list = field(default_factory=list)      # per round: point, runs, score, moved_se
     dropped: list = field(default_factory=list)     # effects dropped after a rerun (prune)
@@ -473,6 +484,26 @@ class LoopState:
     @property
     def n_base(self):
         return len(self.model.base_params())
+
+    @property
+    def coordinates(self) -> dict:
+        """{name: Coordinate} of the model's base parameters and candidates' strengths (its
+        bounds, the units :mod:`analysis.parameter_space` declares)."""
+        return coordinates_of(self.model.base_params(), self.model.effects())
+
+    def vector(self, values, names=None) -> ParameterVector:
+        """A ParameterVector of ``names`` (default: all of ``values``) read from ``values``."""
+        names = list(values.keys() if names is None else names)
+        return ParameterVector.of(values, names, self.coordinates)
+
+    def set_point(self, theta, added):
+        """The current point: base parameters ``theta`` and the added strengths ``added``."""
+        self.theta, self.added = self.vector(theta), self.vector(added)
+
+    @property
+    def point(self) -> ParameterVector:
+        """The current point: the base parameters, then the added effects' strengths."""
+        return self.theta | self.added
 
 
 def loop_space(dataset, extra_effects=(), free=(), base=DEFAULT_BASE):
@@ -574,7 +605,8 @@ def calibrate_stage(state: LoopState):
     w = WithAdded(m, {})
     state.baseline, state.calibrated = calibrate_base(m.predict, state.obs, m.base_params(),
                                                       model_se=w.model_se())
-    state.theta = {p.name: float(state.calibrated.params[p.name]) for p in m.base_params()}
+    state.set_point(state.vector(state.calibrated.params, [p.name for p in m.base_params()]),
+                    {})
     state.final = state.calibrated
     state.stair = [_stage_row("baseline", state.baseline, 0),
                    _stage_row("calibrated", state.calibrated, state.n_base)]
@@ -596,11 +628,10 @@ def select_stage(state: LoopState, log=print):
                         max_effects=s.max_effects, noise_observables=noise_observables(state),
                         log=log, null_draws=s.null_draws, n_jobs=s.n_jobs)
     state.selection = fs
-    state.added = dict(fs["added"])
-    state.theta = dict(fs["theta"])
-    if fs["last_fit"] is not None:
-        state.final = fs["last_fit"]
-    state.stair += fs["stairs"]
+    state.set_point(fs.theta, fs.added)
+    if fs.last_fit is not None:
+        state.final = fs.last_fit
+    state.stair += fs.stairs
 
 
 def focus_stage(state: LoopState, twin, log=print):
@@ -636,10 +667,10 @@ def focus_wave(state: LoopState, twin, log=print, *, wave="focus", seed_add=0) -
                        base_config=state.base_config)
     runs["wave"] = wave
     log("%s wave: %d points about the fit (%s), %d runs"
-        % (wave, len(pts), _fmt_theta(dict(state.theta, **state.added)), len(runs)))
+        % (wave, len(pts), state.point.describe(), len(runs)))
     runs = twin(runs)
     m.fit(pd.concat([m.runs_, runs], ignore_index=True))
-    before = {"point": dict(state.theta, **state.added), "effects": dict(state.added),
+    before = {"point": state.point.to_dict(), "effects": state.added.to_dict(),
               "chi2_dof": state.final.chi2_dof}
     calibrate_stage(state)
     select_stage(state, log)
@@ -648,8 +679,8 @@ def focus_wave(state: LoopState, twin, log=print, *, wave="focus", seed_add=0) -
             % (wave, ", ".join(before["effects"]) or "nothing",
                ", ".join(state.added) or "nothing"))
     return {"n_points": int(len(pts)), "n_runs": int(len(runs)), "before": before,
-            "after": {"point": dict(state.theta, **state.added),
-                      "effects": dict(state.added), "chi2_dof": state.final.chi2_dof}}
+            "after": {"point": state.point.to_dict(),
+                      "effects": state.added.to_dict(), "chi2_dof": state.final.chi2_dof}}
 
 
 def ridge_of(state: LoopState, names: dict):
@@ -779,7 +810,7 @@ def confirm_stage(state: LoopState, twin, log=print):
                            base_config=state.base_config)
         runs["wave"] = "confirm %d" % (r + 1)
         log("twin rerun at the final point (%d seeds per condition): %s"
-            % (s.rerun_replicates, _fmt_theta(dict(state.theta, **state.added))))
+            % (s.rerun_replicates, state.point.describe()))
         runs = twin(runs)
         pred, se = twin_means(m, runs, state.theta, state.added)
         n_par = state.n_base + len(state.added)
@@ -792,17 +823,18 @@ def confirm_stage(state: LoopState, twin, log=print):
                             "n_params": n_par})
         m.fit(pd.concat([m.runs_, runs], ignore_index=True))
         theta, added, refit, dropped = prune_effects(m, state.obs, state.theta, state.added,
-                                                     state.selection.get("need", {}), log)
+                                                     state.selection.need, log)
         moved = fitted_moves(state.final, refit) if not dropped else math.inf
         state.dropped += [dict(d, round=r + 1) for d in dropped]
-        state.reruns.append({"round": r + 1, "point": dict(state.theta, **state.added),
+        state.reruns.append({"round": r + 1, "point": state.point.to_dict(),
                              "runs": runs, "score": score, "moved_se": moved})
         state.stair.append(_stage_row("refitted on the twin reruns", refit,
                                       state.n_base + len(added)))
         log("refitted with the rerun's runs: chi2/dof %.2f, %s"
             % (refit.chi2_dof, "the point moved %.2f se" % moved if not dropped else
                "without %s" % ", ".join(d["effect"] for d in dropped)))
-        state.final, state.theta, state.added = refit, theta, added
+        state.final = refit
+        state.set_point(theta, added)
         missed = score["emulator_vs_twin"]["p"] < COVER_P
         if (moved < CONFIRM_TOL_SE and not missed) or r + 1 == s.confirm_rounds:
             break
@@ -868,7 +900,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     fs, final, cal = state.selection, state.final, state.calibrated
     model, dataset = state.model, state.dataset
     eff_se = {k: float(final.stderr.get(k, np.nan)) for k in state.added}
-    steps = pd.concat(fs["steps"], ignore_index=True) if fs["steps"] else pd.DataFrame()
+    steps = pd.concat(fs.steps, ignore_index=True) if fs.steps else pd.DataFrame()
     diagnosis = _diagnosis_table(steps, state.added, eff_se)
     parameters = parameter_table(state, eff_se)
     comp = state.obs.copy()
@@ -881,7 +913,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     if rr is not None:
         comp["twin_rerun"] = rr["prediction"].to_numpy(float)
         comp["z_twin_rerun"] = rr["z"].to_numpy(float)
-    status, verdict = _verdict_words(fs["diagnoses"], state.added, eff_se, cal, final, rr,
+    status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
                                      dataset, model, state.settings.alpha, parameters,
                                      state.dropped)
     phys = physics_table(dataset.conditions)
@@ -899,7 +931,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
             "wall_s": wall_s, "flight_conditions": state.flight_ids,
             "alpha": state.settings.alpha,
             "tracking": None if state.tracking is None else state.tracking.to_dict("records"),
-            "bootstrap": fs["null"], "focus": state.focus, "dropped": state.dropped,
+            "bootstrap": fs.null, "focus": state.focus, "dropped": state.dropped,
             "failed_runs": ([] if failed is None or not len(failed) else
                             failed[[c for c in ("run_id", "error", "wave", "point",
                                                 "condition_id", "seed") if c in failed]]
@@ -913,7 +945,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
                       staircase=pd.DataFrame(state.stair), diagnosis=diagnosis, steps=steps,
                       parameters=parameters, comparison=comp,
                       model_runs=run_table_of(model.runs_), info=info,
-                      diagnoses=fs["diagnoses"], tracks=state.tracks,
+                      diagnoses=fs.diagnoses, tracks=state.tracks,
                       rerun_runs=None if reruns is None else run_table_of(reruns))
 
 
@@ -1115,10 +1147,6 @@ def rerun_words(rr, final):
                         "within its stated uncertainty" if cover else
                         "BEYOND its stated uncertainty - the emulator is not accurate there yet"))
     return out
-
-
-def _fmt_theta(t):
-    return ", ".join("%s %.4g" % (k, v) for k, v in t.items())
 
 
 def _diagnosis_table(steps, added, eff_se):

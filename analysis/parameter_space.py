@@ -19,6 +19,7 @@ reference point :data:`REFERENCE` (:func:`reference_parameters`) from here.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from yade_scripts.twin_config import PARAMETERS
@@ -147,3 +148,143 @@ def describe() -> str:
             p.name, p.role, p.unit, "%.4g-%.4g" % p.prior, "%.4g-%.4g" % p.physical,
             "yes" if p.base else "-"))
     return "\n".join(rows)
+
+
+# ------------------------------------------------------------------ points of the space
+
+#: the powder line's coefficients a loop with yields fits beside the base parameters:
+#: name -> (unit, lower, upper) (the prior a fit may claim; the paper's values are the start)
+KINETICS_LINE = {"slope_pct_per_kj": ("%/kJ", 1.0, 30.0),
+                 "intercept_pct": ("%", -20.0, 20.0)}
+
+
+@dataclass(frozen=True)
+class Coordinate:
+    """One named coordinate of a point a fit moves: its unit and the bounds the fit keeps to.
+
+    kind : 'contact' or 'apparatus' (a twin parameter, :data:`SPACE`), 'kinetics' (the powder
+        line, :data:`KINETICS_LINE`), 'effect' (a candidate's strength, declared by its file)
+        or 'model' (a name only a model declares, e.g. an analytic test model's)
+    """
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    kind: str
+
+    def __post_init__(self):
+        if not (math.isfinite(self.lower) and math.isfinite(self.upper)
+                and self.lower < self.upper):
+            raise ValueError("%s: bounds must be finite with lower < upper, got %r"
+                             % (self.name, (self.lower, self.upper)))
+
+
+def _strength_unit(label: str) -> str:
+    """The unit of a strength label 'param [unit]' (a linear strength); '-' otherwise."""
+    return label[label.rindex("[") + 1:-1] if label.endswith("]") and "[" in label else "-"
+
+
+def declared_unit(name: str) -> tuple:
+    """(unit, kind) the project declares for ``name``: :data:`SPACE`, :data:`KINETICS_LINE`,
+    an effect's strength; ('-', 'model') for a name none declares."""
+    if name in SPACE:
+        return SPACE[name].unit, SPACE[name].role
+    if name in KINETICS_LINE:
+        return KINETICS_LINE[name][0], "kinetics"
+    strengths = effect_strengths()
+    if name in strengths:
+        return _strength_unit(strengths[name][2]), "effect"
+    return "-", "model"
+
+
+def coordinates_of(base_params, effects=()) -> dict:
+    """{name: Coordinate} of a model's fitted coordinates: its base parameters and its
+    candidate effects' strengths (objects with name, lower, upper: a model's own bounds, which
+    a ``--free NAME=LO:HI`` may narrow), each with the unit the project declares."""
+    out = {}
+    for p in list(base_params) + list(effects):
+        unit, kind = declared_unit(p.name)
+        out[p.name] = Coordinate(p.name, unit, float(p.lower), float(p.upper), kind)
+    return out
+
+
+class ParameterVector(Mapping):
+    """A point of the parameter space: a finite value per named :class:`Coordinate`, in a
+    fixed order. It reads as a mapping name -> float (every model's ``predict`` takes one) and
+    carries each coordinate's unit and bounds; it is immutable (``|`` merges two, ``only``
+    picks names).
+
+    Raises ValueError for a name without a coordinate or a value that is not a finite number.
+    """
+
+    __slots__ = ("_values", "_coords")
+
+    def __init__(self, values, coords):
+        vals = {}
+        for k, v in dict(values).items():
+            if k not in coords:
+                raise ValueError("parameter %r has no declaration here (known: %s)"
+                                 % (k, ", ".join(coords)))
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                raise ValueError("parameter %s: %r is not a number" % (k, v))
+            if not math.isfinite(f):
+                raise ValueError("parameter %s: %r is not a finite number" % (k, v))
+            vals[k] = f
+        self._values = vals
+        self._coords = {k: coords[k] for k in vals}
+
+    @classmethod
+    def of(cls, params, names, coords):
+        """The values of ``names`` read from ``params`` (a fit's Series or a mapping)."""
+        return cls({k: params[k] for k in names}, coords)
+
+    def __getitem__(self, name):
+        return self._values[name]
+
+    def __iter__(self):
+        return iter(self._values)
+
+    def __len__(self):
+        return len(self._values)
+
+    def __or__(self, other):
+        """This point with ``other``'s coordinates added (and its values where both name one)."""
+        coords = dict(self._coords, **other.coordinates)
+        return ParameterVector(dict(self._values, **dict(other)), coords)
+
+    @property
+    def coordinates(self) -> dict:
+        """{name: Coordinate} of this point's names."""
+        return dict(self._coords)
+
+    def unit(self, name) -> str:
+        return self._coords[name].unit
+
+    def bounds(self, name) -> tuple:
+        c = self._coords[name]
+        return c.lower, c.upper
+
+    def only(self, names):
+        """The point restricted to ``names`` (those it has), in its own order."""
+        keep = set(names)
+        return ParameterVector({k: v for k, v in self._values.items() if k in keep},
+                               self._coords)
+
+    def outside_bounds(self) -> list:
+        """Names whose value lies outside its coordinate's bounds."""
+        return [k for k, v in self._values.items()
+                if not self._coords[k].lower <= v <= self._coords[k].upper]
+
+    def to_dict(self) -> dict:
+        """{name: value} (plain floats: JSON, a DataFrame row)."""
+        return dict(self._values)
+
+    def describe(self, digits=4) -> str:
+        """'name value [unit], ...' (SI, as declared)."""
+        return ", ".join("%s %.*g [%s]" % (k, digits, v, self._coords[k].unit)
+                         for k, v in self._values.items())
+
+    def __repr__(self):
+        return "ParameterVector(%s)" % self.describe()

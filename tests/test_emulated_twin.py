@@ -133,15 +133,15 @@ def test_forward_selection_names_the_hidden_effect_and_covers_it(built):
     fs = forward_select(m, obs, dict(m.theta_ref), conditions=CONDITIONS, alpha=0.01,
                         max_effects=2, noise_observables={"v_mean_m_s", "f_col_hz"},
                         log=lambda s: None)
-    assert list(fs["added"]) == ["rolling_resistance"], fs["diagnoses"][0].table
-    fit = fs["last_fit"]
+    assert list(fs.added) == ["rolling_resistance"], fs.diagnoses[0].table
+    fit = fs.last_fit
     s, se = fit.params["rolling_resistance"], fit.stderr["rolling_resistance"]
     assert abs(s - built["s_true"]) < 1.96 * se + 1e-9, (s, se, built["s_true"])
     # the profile-likelihood interval on the emulator (its sd in the likelihood) covers too
     from analysis.diagnose import profile_interval
     from analysis.loop import WithAdded, fitted_parameters
-    w = WithAdded(m, fs["added"], fs["theta"])
-    iv = profile_interval(w.predict, obs, fitted_parameters(m, fs["theta"], fs["added"]),
+    w = WithAdded(m, fs.added, fs.theta)
+    iv = profile_interval(w.predict, obs, fitted_parameters(m, fs.theta, fs.added),
                           "rolling_resistance", fit, model_se=w.model_se())
     assert iv.lower <= built["s_true"] <= iv.upper, iv
     assert iv.upper - iv.lower < 4.5 * se, (iv, se)

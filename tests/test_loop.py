@@ -104,32 +104,32 @@ def test_forward_selection_finds_both_effects_and_stops():
     for seed in range(5):
         obs = _toy_obs(m, truth, 0.01, seed)
         fs = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None)
-        if set(fs["added"]) == {"E1", "E2"}:
+        if set(fs.added) == {"E1", "E2"}:
             hits += 1
-        last = fs["last_fit"]
+        last = fs.last_fit
         for k, s in truth.items():
             if k in last.params:
                 cover += abs(last.params[k] - s) <= 1.96 * last.stderr[k]
-        assert "decoy" not in fs["added"]
-        assert len(fs["diagnoses"]) == len(fs["added"]) + 1    # one more step finds nothing
+        assert "decoy" not in fs.added
+        assert len(fs.diagnoses) == len(fs.added) + 1    # one more step finds nothing
     assert hits == 5
     assert cover >= 9
     # no effect hidden: nothing added
     fs = loop.forward_select(m, _toy_obs(m, {}, 0.01, 7), {"a": 2.0, "b": 0.3},
                              log=lambda s: None)
-    assert fs["added"] == {}
+    assert fs.added == {}
     # with the bootstrap-calibrated threshold: the same answer, and the draws are recorded
     fs = loop.forward_select(m, _toy_obs(m, truth, 0.01, 0), {"a": 2.0, "b": 0.3},
                              log=lambda s: None, null_draws=8)
-    assert set(fs["added"]) == {"E1", "E2"}
-    assert len(fs["null"]) == 2 and all(b["scale"] >= 1.0 for b in fs["null"])
-    assert all(len(b["null_max_delta_chi2"]) == 8 for b in fs["null"])
+    assert set(fs.added) == {"E1", "E2"}
+    assert len(fs.null) == 2 and all(b["scale"] >= 1.0 for b in fs.null)
+    assert all(len(b["null_max_delta_chi2"]) == 8 for b in fs.null)
     # the draws diagnosed in 2 processes: the same draws, the same answer
     par = loop.forward_select(m, _toy_obs(m, truth, 0.01, 0), {"a": 2.0, "b": 0.3},
                               log=lambda s: None, null_draws=8, n_jobs=2)
-    assert [b["null_max_delta_chi2"] for b in par["null"]] == \
-        [b["null_max_delta_chi2"] for b in fs["null"]]
-    assert par["added"] == fs["added"]
+    assert [b["null_max_delta_chi2"] for b in par.null] == \
+        [b["null_max_delta_chi2"] for b in fs.null]
+    assert par.added == fs.added
 
 
 # --------------------------------------------------------------------------- the command
@@ -206,6 +206,37 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
                    + SMALL[:6] + ["--focus-points", "0"] + SMALL[8:])
     assert rc == 0
     assert json.loads((out / "loop.json").read_text())["new_runs"] == 0
+
+
+def test_each_stage_on_its_own_hands_on_a_typed_point(fake_dataset, tmp_path):
+    """read, build, calibrate and select called one by one on one LoopState: the calibrated
+    point is a ParameterVector of the model's base parameters (units as declared, inside the
+    model's bounds) that fits better than the reference point; selection leaves a Selection
+    and the point grows by the added strengths, units and all."""
+    from analysis.parameter_space import ParameterVector, declared_unit
+    s = loop.LoopSettings(points=10, waves=0, focus_points=0, null_draws=0, rerun=False,
+                          intervals=False, max_effects=1)
+    state = loop.read_stage(load_dataset(fake_dataset), s, log=lambda m: None)
+    assert state.theta is None and state.obs is None
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "fake_runs", workers=1,
+                    progress=False)
+    loop.build_stage(state, twin, log=lambda m: None)
+    assert state.obs is not None and len(state.model.runs_) >= 10
+    loop.calibrate_stage(state)
+    assert isinstance(state.theta, ParameterVector)
+    assert list(state.theta) == [p.name for p in state.model.base_params()]
+    assert state.theta.unit("restitution") == "-" and state.theta.unit("amplitude_m") == "m"
+    assert not state.theta.outside_bounds() and len(state.added) == 0
+    assert state.calibrated.chi2 < state.baseline.chi2
+    loop.select_stage(state, log=lambda m: None)
+    assert isinstance(state.selection, loop.Selection)
+    assert isinstance(state.added, ParameterVector)
+    assert list(state.point) == list(state.theta) + list(state.added)
+    assert dict(state.added) == state.selection.added
+    effs = {e.name: e for e in state.model.effects()}
+    for k in state.added:
+        assert state.point.unit(k) == declared_unit(k)[0]
+        assert state.point.bounds(k) == (effs[k].lower, effs[k].upper)
 
 
 def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
