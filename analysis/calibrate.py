@@ -250,7 +250,7 @@ def comparison_table(state, post, samples, n_draws=200, seed=0) -> pd.DataFrame:
     if "v_mean_dem_paper_m_s" in wide:
         out["v_mean_dem_paper_m_s"] = wide.loc[cids, "v_mean_dem_paper_m_s"].to_numpy(float)
     if state.reruns:
-        runs = state.reruns[-1]["runs"]
+        runs = state.reruns[-1].runs
         for q, col, unit in (("v_mean", v_col, "m_s"), ("f_col", "f_col_hz", "hz")):
             g = runs.groupby("condition_id")[col]
             out["%s_twin_%s" % (q, unit)] = g.mean().reindex(cids).to_numpy(float)

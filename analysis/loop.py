@@ -251,7 +251,43 @@ def fitted_parameters(model, theta, added):
     return out
 
 
-def rerun_score(obs, pred, se, final, n_params) -> dict:
+@dataclass
+class RerunScore:
+    """The data against a twin rerun's means (:func:`rerun_score`) and the emulator's check
+    there (:func:`emulator_vs_twin`, set by the confirmation)."""
+
+    prediction: pd.Series            # the rerun's mean per (condition_id, observable)
+    z: pd.Series                     # (prediction - data) / sigma
+    chi2: float
+    dof: int
+    emulator_vs_twin: dict | None = None
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+
+@dataclass
+class Rerun:
+    """One confirmation round: the twin at the fitted point."""
+
+    round: int
+    point: dict                      # the fitted point it ran at (base parameters, strengths)
+    runs: pd.DataFrame
+    score: RerunScore
+    moved_se: float                  # how far the refit with its runs moved the point [se]
+    focus: dict | None = None        # the focus wave it triggered (the emulator missed it)
+
+    def record(self) -> dict:
+        """What loop.json's ``reruns`` holds of it (no runs: model_runs.csv has them)."""
+        out = {"round": self.round, "point": self.point, "moved_se": self.moved_se}
+        if self.focus is not None:
+            out["focus"] = self.focus
+        return out | {"chi2": self.score.chi2, "dof": self.score.dof,
+                      "emulator_vs_twin": self.score.emulator_vs_twin}
+
+
+def rerun_score(obs, pred, se, final, n_params) -> RerunScore:
     """chi2 of the data against a twin rerun's means (the priors' pseudo-observations at the
     fit's values), sigma = hypot(measured sd, the rerun mean's se)."""
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
@@ -259,8 +295,8 @@ def rerun_score(obs, pred, se, final, n_params) -> dict:
     p = np.where(np.isfinite(p), p, final.prediction.reindex(key).to_numpy(float))
     s = np.hypot(obs["sd"].to_numpy(float), se.reindex(key).fillna(0.0).to_numpy(float))
     z = (p - obs["value"].to_numpy(float)) / s
-    return {"prediction": pd.Series(p, index=key), "z": pd.Series(z, index=key),
-            "chi2": float(np.nansum(z ** 2)), "dof": int(np.isfinite(z).sum()) - n_params}
+    return RerunScore(prediction=pd.Series(p, index=key), z=pd.Series(z, index=key),
+                      chi2=float(np.nansum(z ** 2)), dof=int(np.isfinite(z).sum()) - n_params)
 
 
 def joint_fit(model, obs, theta, added):
@@ -474,7 +510,7 @@ class LoopState:
     theta: ParameterVector | None = None  # base parameters at the current point
     added: ParameterVector | None = None  # effect -> strength, in the order added
     final: object = None             # the last fit
-    reruns: list = field(default_factory=list)      # per round: point, runs, score, moved_se
+    reruns: list = field(default_factory=list)      # a Rerun per confirmation round
     dropped: list = field(default_factory=list)     # effects dropped after a rerun (prune)
     focus: dict = field(default_factory=dict)       # the focus wave: its centre, runs, before
     intervals: dict = field(default_factory=dict)   # name -> ProfileInterval
@@ -815,19 +851,19 @@ def confirm_stage(state: LoopState, twin, log=print):
         pred, se = twin_means(m, runs, state.theta, state.added)
         n_par = state.n_base + len(state.added)
         score = rerun_score(state.obs, pred, se, state.final, n_par)
-        score["emulator_vs_twin"] = emulator_vs_twin(m, state.obs, state.theta, state.added,
-                                                     pred, s.rerun_replicates)
-        state.stair.append({"stage": "twin rerun", "chi2": score["chi2"], "dof": score["dof"],
-                            "chi2_dof": score["chi2"] / max(score["dof"], 1),
-                            "p_value": float(stats.chi2.sf(score["chi2"], max(score["dof"], 1))),
+        score.emulator_vs_twin = emulator_vs_twin(m, state.obs, state.theta, state.added,
+                                                  pred, s.rerun_replicates)
+        state.stair.append({"stage": "twin rerun", "chi2": score.chi2, "dof": score.dof,
+                            "chi2_dof": score.chi2_dof,
+                            "p_value": float(stats.chi2.sf(score.chi2, max(score.dof, 1))),
                             "n_params": n_par})
         m.fit(pd.concat([m.runs_, runs], ignore_index=True))
         theta, added, refit, dropped = prune_effects(m, state.obs, state.theta, state.added,
                                                      state.selection.need, log)
         moved = fitted_moves(state.final, refit) if not dropped else math.inf
         state.dropped += [dict(d, round=r + 1) for d in dropped]
-        state.reruns.append({"round": r + 1, "point": state.point.to_dict(),
-                             "runs": runs, "score": score, "moved_se": moved})
+        state.reruns.append(Rerun(round=r + 1, point=state.point.to_dict(), runs=runs,
+                                  score=score, moved_se=moved))
         state.stair.append(_stage_row("refitted on the twin reruns", refit,
                                       state.n_base + len(added)))
         log("refitted with the rerun's runs: chi2/dof %.2f, %s"
@@ -835,16 +871,16 @@ def confirm_stage(state: LoopState, twin, log=print):
                "without %s" % ", ".join(d["effect"] for d in dropped)))
         state.final = refit
         state.set_point(theta, added)
-        missed = score["emulator_vs_twin"]["p"] < COVER_P
+        ev = score.emulator_vs_twin
+        missed = ev["p"] < COVER_P
         if (moved < CONFIRM_TOL_SE and not missed) or r + 1 == s.confirm_rounds:
             break
         if missed:
             log("the emulator missed the twin rerun (chi2 %.1f for %d observations, p = %.2g): "
                 "a focus wave about the refitted point before the next rerun"
-                % (score["emulator_vs_twin"]["chi2"], score["emulator_vs_twin"]["n"],
-                   score["emulator_vs_twin"]["p"]))
+                % (ev["chi2"], ev["n"], ev["p"]))
             before = list(state.stair)
-            state.reruns[-1]["focus"] = focus_wave(state, twin, log,
+            state.reruns[-1].focus = focus_wave(state, twin, log,
                                                    wave="focus after rerun %d" % (r + 1),
                                                    seed_add=r + 1)
             # the second pass's calibration and additions follow the rows so far (its
@@ -909,15 +945,15 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     comp["z_calibrated"] = cal.residuals.reindex(key).to_numpy(float)
     comp["final"] = final.prediction.reindex(key).to_numpy(float)
     comp["z_final"] = final.residuals.reindex(key).to_numpy(float)
-    rr = state.reruns[-1]["score"] if state.reruns else None
+    rr = state.reruns[-1].score if state.reruns else None
     if rr is not None:
-        comp["twin_rerun"] = rr["prediction"].to_numpy(float)
-        comp["z_twin_rerun"] = rr["z"].to_numpy(float)
+        comp["twin_rerun"] = rr.prediction.to_numpy(float)
+        comp["z_twin_rerun"] = rr.z.to_numpy(float)
     status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
                                      dataset, model, state.settings.alpha, parameters,
                                      state.dropped)
     phys = physics_table(dataset.conditions)
-    reruns = (pd.concat([r["runs"] for r in state.reruns], ignore_index=True)
+    reruns = (pd.concat([r.runs for r in state.reruns], ignore_index=True)
               if state.reruns else None)
     info = {"dataset": dataset.name, "velocity_frame": dataset.velocity_frame,
             "conditions": [dict(r, label=label(r["frequency_hz"], r["ball_diameter_mm"],
@@ -936,10 +972,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
                             failed[[c for c in ("run_id", "error", "wave", "point",
                                                 "condition_id", "seed") if c in failed]]
                             .to_dict("records")),
-            "reruns": [{k: v for k, v in r.items() if k not in ("runs", "score")}
-                       | {"chi2": r["score"]["chi2"], "dof": r["score"]["dof"],
-                          "emulator_vs_twin": r["score"].get("emulator_vs_twin")}
-                       for r in state.reruns]}
+            "reruns": [r.record() for r in state.reruns]}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (state.added[k], eff_se[k]) for k in state.added},
                       staircase=pd.DataFrame(state.stair), diagnosis=diagnosis, steps=steps,
@@ -1135,10 +1168,9 @@ def rerun_words(rr, final):
     """The twin rerun's chi2/dof beside the model's, and whether the emulator's stated
     uncertainty covered the rerun (:func:`emulator_vs_twin`, before the rerun's runs joined
     it)."""
-    dof = max(int(rr["dof"]), 1)
     out = ("the real twin rerun at the final parameters: chi2/dof %.2f, the emulator's there "
-           "%.2f" % (rr["chi2"] / dof, final.chi2_dof))
-    ev = rr.get("emulator_vs_twin")
+           "%.2f" % (rr.chi2_dof, final.chi2_dof))
+    ev = rr.emulator_vs_twin
     if ev and ev["n"]:
         cover = ev["p"] >= COVER_P
         out += ("; the emulator's prediction there against the rerun's means, before they "
