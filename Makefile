@@ -22,7 +22,7 @@ help:
 	@echo "make open-world - the blind suite (20 no-effect, 12 one-, 6 two-effect datasets) and the loop on each -> results/open_world/{nulls,effects,pairs}/, loop/README.md"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
-	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 2-3 h on 1 worker; cached, resumable) -> results/studies/vf_trend/"
+	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 1 h on 1 worker; cached, resumable; the committed run table holds their summaries) -> results/studies/vf_trend/"
 	@echo "make table3-chain - the loop on Table 3 with the measurement chain among its candidates, at assumed v sds of 0.5, 1 and 2 % (about 1 h each on 1 worker from the committed runs) -> results/table3_chain/"
 	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 + held-out runs; about 1.5 h on 2 cores) -> results/studies/emulator_check/"
 	@echo "make report - one page per study folder -> results/*/README.md, results/README.md"

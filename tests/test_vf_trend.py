@@ -200,6 +200,22 @@ def test_unfinished_variant_is_marked():
     assert v.loc["default", "finished"] and not v.loc["fillet 10 mm", "finished"]
 
 
+def test_a_ball_out_of_end_to_end_flight_in_every_run_is_finished_without_a_trend():
+    """All runs done but none in end-to-end flight for one ball: the variant is finished (a
+    rerun would not change it), that ball has no trend, and the conclusion names it."""
+    tab = synthetic_table({"default": (1.0, 1.0), "restitution 0.5": (-1.0, 0.5)})
+    out = (tab["variant"] == "restitution 0.5") & (tab["ball_diameter_mm"] == 20.6)
+    tab.loc[out, "motion_mode"] = "slow"
+    t = vt.trend_table(tab, 3)
+    v = vt.verdicts(t).set_index("variant")
+    assert v.loc["restitution 0.5", "finished"]
+    row = t[(t["variant"] == "restitution 0.5") & (t["ball_diameter_mm"] == 20.6)].iloc[0]
+    assert not row["has_trend"] and row["not_end_to_end"] == 6
+    from analysis.report.vf_trend_page import conclusions
+    words = " ".join(conclusions(t, vt.verdicts(t), vt.study_info()))
+    assert "restitution 0.5, 20.6 mm ball (6 of 6 runs in another mode)" in words
+
+
 def test_design_is_valid_and_ordered():
     runs = vt.design(["default", "fillet 13 mm (domed)", "arc, pivot above (c -10 1/m)"], 2)
     assert len(runs) == 3 * 4 * 2

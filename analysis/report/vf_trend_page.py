@@ -75,6 +75,13 @@ def conclusions(trend, verd, info, finished_only=True):
     if len(far):
         out.append("The same only with k > %g or a shift within 2 se (an extrapolation far "
                    "beyond what was run, or noise): %s." % (LEVER_MAX, words(far)))
+    none = trend[~trend["has_trend"].astype(bool)] if "has_trend" in trend else trend[:0]
+    if len(none):
+        out.append("No trend (fewer than three of its runs in end-to-end flight, the only "
+                   "ones used; a rerun would not change that): %s."
+                   % "; ".join("%s, %.1f mm ball (%d of %d runs in another mode)"
+                               % (r.variant, r.ball_diameter_mm, r.not_end_to_end, r.runs_done)
+                               for r in none.itertuples()))
     return out
 
 

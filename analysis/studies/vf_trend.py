@@ -348,7 +348,10 @@ def trend_table(table: pd.DataFrame, seeds: int) -> pd.DataFrame:
                          "dof": t["dof"], "n_22_5hz": t["n_low"], "n_30hz": t["n_high"],
                          "runs_done": n_runs, "runs_planned": 2 * seeds,
                          "not_end_to_end": other,
-                         "finished": bool(n_runs == 2 * seeds and t["dof"] >= 1),
+                         # every run done (a ball out of end-to-end flight in them all
+                         # is finished without a trend: rerunning does not change that)
+                         "finished": bool(n_runs == 2 * seeds),
+                         "has_trend": bool(t["dof"] >= 1),
                          "edem_change_pct": EDEM_TREND_PCT[d]})
     out = pd.DataFrame(rows)
     if out.empty:
