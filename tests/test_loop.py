@@ -211,8 +211,9 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
 def test_each_stage_on_its_own_hands_on_a_typed_point(fake_dataset, tmp_path):
     """read, build, calibrate and select called one by one on one LoopState: the calibrated
     point is a ParameterVector of the model's base parameters (units as declared, inside the
-    model's bounds) that fits better than the reference point; selection leaves a Selection
-    and the point grows by the added strengths, units and all."""
+    model's bounds) that fits better than the reference point; selection (one candidate, to
+    keep it short) leaves a Selection and a typed point; a strength joins the point with its
+    declared unit and the model's bounds."""
     from analysis.parameter_space import ParameterVector, declared_unit
     s = loop.LoopSettings(points=10, waves=0, focus_points=0, null_draws=0, rerun=False,
                           intervals=False, max_effects=1)
@@ -228,15 +229,18 @@ def test_each_stage_on_its_own_hands_on_a_typed_point(fake_dataset, tmp_path):
     assert state.theta.unit("restitution") == "-" and state.theta.unit("amplitude_m") == "m"
     assert not state.theta.outside_bounds() and len(state.added) == 0
     assert state.calibrated.chi2 < state.baseline.chi2
+    every = state.model.effects
+    state.model.effects = lambda: [e for e in every() if e.name == "jar_compliance"]
     loop.select_stage(state, log=lambda m: None)
     assert isinstance(state.selection, loop.Selection)
     assert isinstance(state.added, ParameterVector)
-    assert list(state.point) == list(state.theta) + list(state.added)
     assert dict(state.added) == state.selection.added
-    effs = {e.name: e for e in state.model.effects()}
-    for k in state.added:
-        assert state.point.unit(k) == declared_unit(k)[0]
-        assert state.point.bounds(k) == (effs[k].lower, effs[k].upper)
+    assert list(state.point) == list(state.theta) + list(state.added)
+    state.set_point(state.theta, {"jar_compliance": 0.4})
+    (e,) = state.model.effects()
+    assert list(state.point)[-1] == "jar_compliance" and state.point["jar_compliance"] == 0.4
+    assert state.point.unit("jar_compliance") == declared_unit("jar_compliance")[0] == "-"
+    assert state.point.bounds("jar_compliance") == (e.lower, e.upper)
 
 
 def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
