@@ -641,8 +641,7 @@ def calibrate_stage(state: LoopState):
     w = WithAdded(m, {})
     state.baseline, state.calibrated = calibrate_base(m.predict, state.obs, m.base_params(),
                                                       model_se=w.model_se())
-    state.set_point(state.vector(state.calibrated.params, [p.name for p in m.base_params()]),
-                    {})
+    state.set_point({p.name: state.calibrated.params[p.name] for p in m.base_params()}, {})
     state.final = state.calibrated
     state.stair = [_stage_row("baseline", state.baseline, 0),
                    _stage_row("calibrated", state.calibrated, state.n_base)]

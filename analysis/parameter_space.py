@@ -184,14 +184,15 @@ def _strength_unit(label: str) -> str:
     return label[label.rindex("[") + 1:-1] if label.endswith("]") and "[" in label else "-"
 
 
-def declared_unit(name: str) -> tuple:
+def declared_unit(name: str, strengths=None) -> tuple:
     """(unit, kind) the project declares for ``name``: :data:`SPACE`, :data:`KINETICS_LINE`,
-    an effect's strength; ('-', 'model') for a name none declares."""
+    an effect's strength (``strengths``: :func:`effect_strengths`, read when not given);
+    ('-', 'model') for a name none declares."""
     if name in SPACE:
         return SPACE[name].unit, SPACE[name].role
     if name in KINETICS_LINE:
         return KINETICS_LINE[name][0], "kinetics"
-    strengths = effect_strengths()
+    strengths = effect_strengths() if strengths is None else strengths
     if name in strengths:
         return _strength_unit(strengths[name][2]), "effect"
     return "-", "model"
@@ -201,9 +202,9 @@ def coordinates_of(base_params, effects=()) -> dict:
     """{name: Coordinate} of a model's fitted coordinates: its base parameters and its
     candidate effects' strengths (objects with name, lower, upper: a model's own bounds, which
     a ``--free NAME=LO:HI`` may narrow), each with the unit the project declares."""
-    out = {}
+    out, strengths = {}, effect_strengths()
     for p in list(base_params) + list(effects):
-        unit, kind = declared_unit(p.name)
+        unit, kind = declared_unit(p.name, strengths)
         out[p.name] = Coordinate(p.name, unit, float(p.lower), float(p.upper), kind)
     return out
 
