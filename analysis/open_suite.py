@@ -93,6 +93,11 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
     found = list(sig["effect"])
     row = {"dataset": name, "hidden": "+".join(true) or "none", "found": "+".join(found) or
            "none", "n_hidden": len(true), "status": loop_info.get("status")}
+    from analysis.catalog import candidates
+    chain = {k for k, c in candidates().items() if c.kind == "observation"}
+    row["chain_hidden"] = any(k in chain for k in true)
+    row["chain_found"] = any(k in chain for k in found)
+    row["chain_in_catalog"] = bool(diagnosis["effect"].isin(chain).any())
     row["nothing_missing_ok"] = (not true) and not found
     row["all_named"] = bool(true) and all(k in found for k in true)
     row["no_other"] = all(k in true for k in found)
@@ -151,6 +156,10 @@ def truth_observations(obs, truth) -> pd.DataFrame:
     for cid, ys in (kin.get("yields_true") or {}).items():
         vals.update({(cid, "yield_pct@%gmin" % t): y
                      for t, y in zip(kin.get("yield_times_min") or (), ys)})
+    # a hidden measurement chain (analysis.studies.open_world_data.make_chain): the factor it
+    # applied to each observable at each condition
+    chain = (truth.get("observation") or {}).get("factor") or {}
+    vals = {(c, o): v * chain.get(c, {}).get(o, 1.0) for (c, o), v in vals.items()}
     own = obs["condition_id"].isin({c for c, _ in vals})
     new = [vals.get((c, o), np.nan) for c, o in zip(obs["condition_id"], obs["observable"])]
     out = obs.assign(value=np.where(own, new, obs["value"]))
@@ -182,17 +191,19 @@ def _leftover_chi2(m, obs, truth, held) -> float:
     return best
 
 
-def _true_dem(truth) -> dict:
+def _true_hidden(truth) -> dict:
+    """The hidden effects the observables see (DEM and measurement chain; not kinetics)."""
     from analysis.catalog import candidates
-    return {k: v for k, v in truth_strengths(truth).items() if candidates()[k].kind == "dem"}
+    return {k: v for k, v in truth_strengths(truth).items()
+            if candidates()[k].kind in ("dem", "observation")}
 
 
 def detectable_chi2(dataset, truth, loop_dir) -> float:
-    """The chi2 the hidden DEM effects leave after recalibration without them: the twin's own
-    noise-free data at the truth (:func:`truth_observations`) fitted by the loop's model
+    """The chi2 the hidden effects (DEM or measurement chain) leave after recalibration without
+    them: the twin's own noise-free data at the truth, observed through the hidden chain (:func:`truth_observations`) fitted by the loop's model
     (:func:`loop_model`) without effects, with the dataset's sds (one twin realisation: its
-    chaos stays in, as in the data). NaN when there is no DEM effect or no model."""
-    true = _true_dem(truth)
+    chaos stays in, as in the data). NaN when no such effect is hidden or there is no model."""
+    true = _true_hidden(truth)
     if not true:
         return float("nan")
     m, obs = loop_model(dataset, loop_dir)
@@ -207,7 +218,7 @@ def detectable_each(dataset, truth, loop_dir) -> dict:
     (in the loop's model) at its true strength. An effect under :data:`DETECTABLE_CHI2` here cannot be told from a shift of
     the base parameters once the other is found. {} when there is no DEM effect or a run is
     missing."""
-    true = _true_dem(truth)
+    true = _true_hidden(truth)
     if not true:
         return {}
     m, obs = loop_model(dataset, loop_dir)
@@ -379,7 +390,9 @@ def sigma_line(check) -> str | None:
 def goal_lines(summ) -> list:
     """The goals with their counts."""
     null = summ[summ["n_hidden"] == 0]
-    one = summ[summ["n_hidden"] == 1]
+    chain = (summ["chain_hidden"].astype(bool) if "chain_hidden" in summ
+             else pd.Series(False, index=summ.index))
+    one = summ[(summ["n_hidden"] == 1) & ~chain]   # one DEM effect (the chain: its own line)
     two = summ[summ["n_hidden"] >= 2]
     eff = summ[summ["n_hidden"] >= 1]
     cov = eff["covered"].dropna()
@@ -398,6 +411,18 @@ def goal_lines(summ) -> list:
              % (len(det), len(one), det["first_named"].sum() if "first_named" in det
                 else det["all_named"].sum(), len(det),
                 (det["all_named"] & det["no_other"]).sum(), len(det)))
+    if "chain_in_catalog" in summ and summ["chain_in_catalog"].astype(bool).any():
+        ch = summ[summ["chain_hidden"].astype(bool)]
+        looked = null[null["chain_in_catalog"].astype(bool)]
+        nch = looked[~looked["chain_found"].astype(bool)]
+        if len(ch):
+            cc = ch["covered"].dropna()
+            L.append("a measurement chain hidden (smoothing window, scale) -> named first and "
+                     "significant: %d / %d (goal >= 90 %%); its 95 %% interval covers the "
+                     "truth: %d / %d (goal >= 90 %%)"
+                     % (ch["first_named"].sum(), len(ch), cc.sum(), len(cc)))
+        L.append("no effect hidden -> no measurement-chain effect named: %d / %d (goal >= 95 %%)"
+                 % (len(nch), len(looked)))
     L.append("two effects hidden -> both named: %d / %d (goal >= 80 %%)"
              % (two["all_named"].sum(), len(two)))
     if "detectable_min_chi2" in two and len(two):
@@ -439,6 +464,15 @@ def main(argv=None):
     ap.add_argument("--per-wave", type=int, default=SUITE_PER_WAVE,
                     help="design points per refinement wave of each loop [points] (default "
                     "%(default)s)")
+    ap.add_argument("--waves", type=int, default=None,
+                    help="refinement waves of each loop [waves] (default: the loop's)")
+    ap.add_argument("--focus-points", type=int, default=None,
+                    help="focus-wave points of each loop (0: none) [points] (default: the "
+                    "loop's)")
+    ap.add_argument("--with-effect", action="append", default=[], metavar="NAME",
+                    help="an optional catalog entry every loop diagnoses too (repeatable; "
+                    "e.g. the measurement chain: apparent_scale, smoothing_window, frame_rate, "
+                    "camera_plane, collision_count)")
     ap.add_argument("--score-only", action="store_true",
                     help="score the datasets whose loop already ran in --out, run no loop")
     a = ap.parse_args(argv)
@@ -446,8 +480,14 @@ def main(argv=None):
     from analysis.loop import LoopSettings
     dirs = [Path(d) for d in (a.datasets or DATASETS_DIRS)]
     try:
+        from analysis.loop import optional_effects
+        opts = {k: v for k, v in (("waves", a.waves), ("focus_points", a.focus_points))
+                if v is not None}
         settings = LoopSettings(rerun=not a.no_rerun, null_draws=a.null_draws,
-                                per_wave=a.per_wave, n_jobs=a.workers).check()
+                                per_wave=a.per_wave, n_jobs=a.workers,
+                                extra_effects=tuple(optional_effects(a.with_effect,
+                                                                     {"frame": "auto"})),
+                                **opts).check()
         check_outputs(dirs, a.out, a.only, a.score_only)
     except (OutputError, ValueError, OSError) as exc:
         print("analysis.open_suite: error: %s" % exc, file=sys.stderr)

@@ -305,3 +305,124 @@ def test_suite_takes_the_folders_in_turn_and_refuses_a_name_twice(tmp_path):
     (tmp_path / "pairs" / "eff_p01" / "dataset.json").write_text("{}")
     with pytest.raises(ValueError, match="eff_p01"):
         suite_datasets([tmp_path / "effects", tmp_path / "pairs"])
+
+
+def _ping_pong_track(f_col_hz, v_m_s, fps=2134.0, duration_s=0.5, y_m=0.0):
+    """A ball bouncing between two walls at constant speed (a triangle wave in x), sampled at
+    the camera rate: every impact a sharp reversal, f_col impacts per second."""
+    import pandas as pd
+    t = np.arange(int(duration_s * fps)) / fps
+    half = 1.0 / f_col_hz                          # one flight between impacts
+    span = v_m_s * half
+    ph = np.mod(t + 0.37 * half, 2.0 * half)
+    x = np.where(ph < half, v_m_s * ph, 2.0 * span - v_m_s * ph)
+    return pd.DataFrame({"t_s": t, "x_m": x, "y_m": np.full_like(t, y_m),
+                         "jar_x_m": 0.012 * np.sin(np.pi * f_col_hz * t)})  # the jar at f_col / 2
+
+
+def test_a_hidden_smoothing_window_is_measured_on_the_track_as_the_catalog_states_it():
+    """The chain datasets' smoothing, on analytic ping-pong tracks: a Savitzky-Golay window run
+    straight through sharp reversals loses a fixed TIME per impact, so the catalog's
+    tau = 2 (1 - ratio) / f_col is the same at 44 and 62 impacts/s and at 1.5 and 2.5 m/s (2 %),
+    grows with the window (31 frames / 15 frames: 2.07 in frames, tau within 15 % of it), and
+    the raw difference (3 frames, order 2) loses half a frame per impact: tau = 1 / fps."""
+    import pandas as pd
+    from analysis.measurements import Dataset
+    from analysis.studies.open_world_data import smoothing_factors
+    cases = [(44.0, 1.5), (62.0, 1.5), (44.0, 2.5)]
+    ids = ["a", "b", "c"]
+    ds = Dataset(name="pp", description="", source="", velocity_frame="lab",
+                 conditions=pd.DataFrame({"condition_id": ids, "frequency_hz": [22.0, 31.0, 22.0],
+                                          "ball_diameter_mm": [20.0] * 3}),
+                 summary=pd.DataFrame(), yields=None, meta={},
+                 tracks={c: _ping_pong_track(f, v) for c, (f, v) in zip(ids, cases)})
+    w15, w31 = smoothing_factors(ds, 15), smoothing_factors(ds, 31)
+    np.testing.assert_allclose(w15["f_col_hz"], [44.0, 62.0, 44.0], rtol=0.01)
+    assert (w31["ratio"] < w15["ratio"]).all() and (w15["ratio"] < 1.0).all()
+    np.testing.assert_allclose(w15["tau_s"], w15["tau_s"].mean(), rtol=0.02)
+    np.testing.assert_allclose(w31["tau_s"] / w15["tau_s"], 31.0 / 15.0, rtol=0.15)
+    # a 3-frame order-2 filter is the raw difference, which cuts each reversal's corner by
+    # half a frame: tau = one frame
+    np.testing.assert_allclose(smoothing_factors(ds, 3)["tau_s"], 1.0 / 2134.0, rtol=0.1)
+    with pytest.raises(ValueError, match="condition b has no track"):
+        smoothing_factors(Dataset(**{**ds.__dict__, "tracks": {"a": ds.tracks["a"]}}), 15)
+
+
+def test_chain_datasets_are_their_source_observed_through_the_hidden_chain(tmp_path):
+    """make_chain on a hand-made no-effect dataset with tracks: a blurred scale divides the
+    speeds (and their sds) and every track length by 1 + s and leaves f_col and the yields; the
+    truth names the effect at its catalog strength with the factor per observable, and the
+    noise-free data the suite scores against (truth_observations) carry that factor. The case
+    list alternates the two hidden effects with strengths inside their ranges, seeded."""
+    import pandas as pd
+    from analysis.measurements import Dataset, load_dataset, write_dataset
+    from analysis.open_suite import truth_observations, truth_strengths
+    from analysis.studies import open_world_data as owd
+    ids = ["c1", "c2"]
+    src = Dataset(name="null_p10", description="", source="test", velocity_frame="lab",
+                  conditions=pd.DataFrame({"condition_id": ids, "frequency_hz": [22.0, 30.0],
+                                           "ball_diameter_mm": [20.0, 18.0]}),
+                  summary=pd.DataFrame({"condition_id": ids, "v_mean_m_s": [1.8, 2.4],
+                                        "v_mean_sd_m_s": [0.03, 0.04], "f_col_hz": [44.0, 60.0],
+                                        "f_col_sd_hz": [1.0, 1.0]}),
+                  yields=None, meta={"name": "null_p10"},
+                  tracks={c: _ping_pong_track(2 * f, 1.8) for c, f in zip(ids, [22.0, 30.0])})
+    nulls = tmp_path / "nulls"
+    write_dataset(src, nulls / "null_p10")
+    (nulls / "truth").mkdir()
+    (nulls / "truth" / "null_p10.truth.json").write_text(json.dumps(
+        {"name": "null_p10", "effects": {}, "base_config": {"restitution": 0.3},
+         "twin_means": {"c1": {"v_mean_m_s": 1.79, "f_col_hz": 44.0},
+                        "c2": {"v_mean_m_s": 2.41, "f_col_hz": 60.0}}}))
+    out = tmp_path / "chain"
+    path, truth_file = owd.make_chain("chain_p01", ("apparent_scale", {"blur_fraction": 0.08},
+                                                    "null_p10"), nulls, out)
+    ds, truth = load_dataset(path), json.loads(truth_file.read_text())
+    np.testing.assert_allclose(ds.summary["v_mean_m_s"], [1.8 / 1.08, 2.4 / 1.08])
+    np.testing.assert_allclose(ds.summary["v_mean_sd_m_s"], [0.03 / 1.08, 0.04 / 1.08])
+    np.testing.assert_allclose(ds.summary["f_col_hz"], [44.0, 60.0])
+    np.testing.assert_allclose(ds.tracks["c2"]["x_m"], src.tracks["c2"]["x_m"] / 1.08,
+                               atol=1e-9)
+    assert truth_strengths(truth) == {"apparent_scale": pytest.approx(0.08)}
+    assert truth["base_config"] == {"restitution": 0.3}
+    obs = pd.DataFrame({"condition_id": ["c1", "c1"], "observable": ["v_mean_m_s", "f_col_hz"],
+                        "value": [0.0, 0.0], "sd": [1.0, 1.0]})
+    np.testing.assert_allclose(truth_observations(obs, truth)["value"], [1.79 / 1.08, 44.0])
+    cases = owd.chain_cases(6)
+    assert owd.chain_cases(6) == cases
+    assert [c[0] for c in cases.values()] == list(owd.HIDDEN_OBSERVATION) * 3
+    assert [c[2] for c in cases.values()] == ["null_p%02d" % (10 + k) for k in range(6)]
+    for effect, spec, _ in cases.values():
+        if effect == "smoothing_window":
+            w = spec["window_frames"]
+            assert w % 2 == 1 and owd.CHAIN_WINDOW_FRAMES[0] <= w <= owd.CHAIN_WINDOW_FRAMES[1]
+        else:
+            assert 0.035 - 1e-9 <= spec["blur_fraction"] <= 0.09 + 1e-9
+
+
+def test_goal_lines_count_the_chain_on_their_own():
+    """A hidden chain is scored on its own line (not as a one-DEM-effect case), and a chain
+    entry named on no-effect data counts against 'no measurement-chain effect named' - only
+    for loops whose catalog held the chain."""
+    import pandas as pd
+    from analysis.open_suite import goal_lines, score
+    stairs = pd.DataFrame({"stage": ["calibrated", "twin rerun"], "chi2_dof": [1.0, 1.1]})
+    diag = lambda rows: pd.DataFrame(rows, columns=["effect", "rank", "significant", "strength",
+                                                    "strength_se"])
+    chain_cat = [["apparent_scale", 3, False, 0.0, 0.1], ["arc_motion", 4, False, 0.0, 1.0]]
+    rows = [
+        score("s", {}, diag([["smoothing_window", 1, True, 0.004, 0.0002]] + chain_cat),
+              stairs, {"effects": {"smoothing_window": {"window_s": 0.0041}}}),
+        score("n1", {}, diag([["smoothing_window", 1, True, 0.001, 0.0002]] + chain_cat),
+              stairs, {"effects": {}}),
+        score("n2", {}, diag(chain_cat), stairs, {"effects": {}}),
+        score("n3", {}, diag([["arc_motion", 4, False, 0.0, 1.0]]), stairs, {"effects": {}}),
+    ]
+    summ = pd.DataFrame(rows)
+    L = "\n".join(goal_lines(summ))
+    assert "a measurement chain hidden (smoothing window, scale) -> named first and " \
+           "significant: 1 / 1" in L and "covers the truth: 1 / 1" in L
+    assert "no measurement-chain effect named: 1 / 2" in L
+    assert "one effect hidden that moves the data >= 3 sigma after recalibration (0 of 0)" in L
+    L = "\n".join(goal_lines(summ[summ["dataset"] == "n3"]))
+    assert "measurement-chain" not in L

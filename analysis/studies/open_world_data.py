@@ -27,6 +27,8 @@ import pandas as pd
 from analysis.config import RESULTS_DIR
 
 OUT_DIR = RESULTS_DIR / "open_world" / "datasets"
+#: the no-effect datasets the chain cases are made from
+NULLS_DIR = RESULTS_DIR / "open_world" / "nulls"
 
 #: six conditions none of which the paper ran
 CONDITIONS = pd.DataFrame({
@@ -124,6 +126,113 @@ def pair_cases(n):
     return out
 
 
+#: observation effects hidden by :func:`chain_cases`, in turn
+HIDDEN_OBSERVATION = ("smoothing_window", "apparent_scale")
+#: the hidden smoothing: a Savitzky-Golay window of this many frames (odd, drawn), this order,
+#: run straight through the impacts on the dataset's own ball track
+CHAIN_WINDOW_FRAMES, CHAIN_POLYORDER = (13, 37), 2
+#: the chain cases are made from the no-effect datasets null_p10 .. (their twin realisations,
+#: noise and tracks), observed through a chain the dataset does not state
+CHAIN_FROM = 10
+
+
+def chain_cases(n):
+    """``n`` observation cases chain_p00 ..: the measurement chain hides
+    :data:`HIDDEN_OBSERVATION` in turn - a smoothing window of an odd number of frames drawn in
+    :data:`CHAIN_WINDOW_FRAMES`, or a blurred length scale (blur fraction drawn in
+    :data:`EFFECT_FRACTION` of its diagnose range) - each made from null_p(10 + k)."""
+    from analysis.catalog import candidates
+    out = {}
+    for k in range(int(n)):
+        name = HIDDEN_OBSERVATION[k % len(HIDDEN_OBSERVATION)]
+        rng = np.random.default_rng(7000 + k)
+        if name == "smoothing_window":
+            lo, hi = CHAIN_WINDOW_FRAMES
+            spec = {"window_frames": int(lo + 2 * rng.integers(0, (hi - lo) // 2 + 1))}
+        else:
+            s_max = candidates("observation")["apparent_scale"].s_max
+            spec = {"blur_fraction": float("%.3g" % (rng.uniform(*EFFECT_FRACTION) * s_max))}
+        out["chain_p%02d" % k] = (name, spec, "null_p%02d" % (CHAIN_FROM + k))
+    return out
+
+
+def smoothing_factors(dataset, window_frames, polyorder=CHAIN_POLYORDER) -> pd.DataFrame:
+    """Per condition of ``dataset`` (which must carry tracks): the mean speed of its ball track
+    smoothed straight through the impacts (``window_frames``, ``polyorder``: the plain recipe,
+    no kink handling) over the operator's own best estimate of it (kink-corrected), the
+    collision rate, and the moving-average window tau = 2 (1 - ratio) / f_col [s] that the
+    catalog's smoothing_window gives for that loss. Columns condition_id, ratio, f_col_hz,
+    tau_s."""
+    from analysis.observe import observe_track
+    rows = []
+    freq = dataset.conditions.set_index("condition_id")["frequency_hz"].astype(float)
+    for cid in dataset.condition_ids:
+        tr = dataset.tracks.get(cid)
+        if tr is None:
+            raise ValueError("dataset %s: condition %s has no track to re-observe"
+                             % (dataset.name, cid))
+        args = (tr["t_s"].to_numpy(float), tr["x_m"].to_numpy(float), tr["y_m"].to_numpy(float))
+        best = observe_track(*args, frequency_hz=float(freq[cid]))
+        plain = observe_track(*args, frequency_hz=float(freq[cid]), window=int(window_frames),
+                              polyorder=int(polyorder), kink_correction=False)
+        r = plain.v_mean_m_s / best.v_mean_m_s
+        rows.append((cid, r, best.f_col_hz, 2.0 * (1.0 - r) / best.f_col_hz))
+    return pd.DataFrame(rows, columns=["condition_id", "ratio", "f_col_hz", "tau_s"])
+
+
+def make_chain(name, case, nulls_dir, out_dir):
+    """Write chain dataset ``name`` = ``case`` (effect, spec, source null) into
+    ``out_dir/name`` (truth in out_dir/truth): the source's summary, tracks and yields observed
+    through the hidden chain - the speeds of a track smoothed over ``window_frames`` (the ratio
+    measured on each condition's own track), or every length / (1 + blur_fraction). The truth
+    states the catalog strength (the smoothing: the mean of the per-condition tau) and the
+    factor applied to each observable at each condition."""
+    import json
+    from effects.apparent_scale import SCALED
+    from effects.smoothing_window import SMOOTHED
+    from analysis.atomic_dir import atomic_file
+    from analysis.hidden import check_outputs
+    from analysis.measurements import Dataset, load_dataset, write_dataset
+    effect, spec, source = case
+    nulls_dir, out_dir = Path(nulls_dir), Path(out_dir)
+    ds = load_dataset(nulls_dir / source)
+    truth = json.loads((nulls_dir / "truth" / ("%s.truth.json" % source)).read_text())
+    if effect == "smoothing_window":
+        fac = smoothing_factors(ds, spec["window_frames"])
+        strength = {"window_s": float(fac["tau_s"].mean())}
+        factor = {c: {o: float(r) for o in SMOOTHED} for c, r in zip(fac["condition_id"],
+                                                                     fac["ratio"])}
+        extra = {"tau_s": dict(zip(fac["condition_id"], map(float, fac["tau_s"])))}
+        tracks = ds.tracks
+    elif effect == "apparent_scale":
+        strength = {"blur_fraction": float(spec["blur_fraction"])}
+        k = 1.0 / (1.0 + strength["blur_fraction"])
+        factor = {c: {o: k for o in SCALED} for c in ds.condition_ids}
+        extra = {}
+        tracks = {c: t.assign(**{q: k * t[q] for q in ("x_m", "y_m", "jar_x_m") if q in t})
+                  for c, t in ds.tracks.items()}
+    else:
+        raise ValueError("chain case %s: %s is not a hidden observation effect (%s)"
+                         % (name, effect, ", ".join(HIDDEN_OBSERVATION)))
+    v = ds.summary["condition_id"].map(lambda c: factor[c].get("v_mean_m_s", 1.0))
+    summary = ds.summary.assign(v_mean_m_s=ds.summary["v_mean_m_s"] * v,
+                                v_mean_sd_m_s=ds.summary["v_mean_sd_m_s"] * v)
+    desc = ("SYNTHETIC blind dataset %s observed through a measurement chain it does not state "
+            "(made from %s); its truth is kept apart" % (name, source))
+    out = Dataset(name=name, description=desc, source=ds.source,
+                  velocity_frame=ds.velocity_frame, conditions=ds.conditions, summary=summary,
+                  yields=ds.yields, meta=dict(ds.meta, name=name, description=desc),
+                  tracks=tracks)
+    path = write_dataset(out, out_dir / name, overwrite=True)
+    t = dict(truth, name=name, effects={effect: strength},
+             observation={"effect": effect, "made_from": source, **spec, **extra,
+                          "factor": factor})
+    _, truth_file = check_outputs(name, out_dir / name, out_dir / "truth")
+    with atomic_file(truth_file) as tmp:
+        tmp.write_text(json.dumps(t, indent=1))
+    return path, truth_file
+
+
 def make(name, out_dir=OUT_DIR, workers=2, runner=None, conditions=CONDITIONS,
          base=OFF_ANCHOR, case=None):
     """Write dataset ``name`` of :data:`CASES` (or ``case`` = (effects, seed[, base])) into
@@ -205,16 +314,27 @@ def main(argv=None):
                     help="also write this many two-effect datasets pair_pNN (pairs of hidden "
                     "effects in turn, strengths drawn, base parameters from the posterior) "
                     "[datasets]")
+    ap.add_argument("--chain", type=int, default=0,
+                    help="also write this many datasets chain_pNN: null_p10 .. observed "
+                    "through a hidden smoothing window or blurred scale (no twin run; needs "
+                    "--nulls-dir) [datasets]")
+    ap.add_argument("--nulls-dir", default=str(NULLS_DIR),
+                    help="the no-effect datasets --chain is made from (default %(default)s)")
     a = ap.parse_args(argv)
     from analysis.atomic_dir import OutputError
     from analysis.hidden import check_outputs
     named = [c for c in (a.only or sorted(CASES)) if c != "none"]
     films = [f for f in (a.films if a.films is not None else ["visco"]) if f != "none"]
     drawn = {**null_cases(a.nulls), **effect_cases(a.effects), **pair_cases(a.pairs)}
+    chain = chain_cases(a.chain)
     out = Path(a.out)
     try:                                    # every folder and truth file before any run
-        for name in named + list(drawn) + ["%s_film" % f for f in films]:
+        for name in named + list(drawn) + list(chain) + ["%s_film" % f for f in films]:
             check_outputs(name, out / name, out / "truth")
+        for _, _, source in chain.values():
+            if not (Path(a.nulls_dir) / source / "dataset.json").is_file():
+                raise OutputError("--chain: %s has no dataset %s to observe"
+                                  % (a.nulls_dir, source))
     except OutputError as exc:
         print("open_world_data: error: %s" % exc, file=sys.stderr)
         return 2
@@ -226,6 +346,9 @@ def main(argv=None):
         print("wrote %s (truth %s)" % (ds, truth))
     for name in films:
         print("wrote %s" % make_film_copy(name, a.out))
+    for name, case in chain.items():
+        ds, truth = make_chain(name, case, a.nulls_dir, a.out)
+        print("wrote %s (truth %s)" % (ds, truth))
     return 0
 
 
