@@ -1,9 +1,10 @@
 """The loop on blind datasets whose truth is known: does it find what was hidden, and only that?
 
 Runs :func:`analysis.loop.run_loop` on every dataset folder in the ``--datasets`` folders
-(default: results/open_world/nulls, effects and pairs - 20 no-effect, 12 one-effect and 6
-two-effect datasets; each with its truth in ``<datasets>/truth/<name>.truth.json``, as
-:mod:`analysis.studies.open_world_data` and :mod:`analysis.hidden` write them), one output
+(default: results/open_world/nulls, effects, pairs and chain - 20 no-effect, 12 one-effect,
+6 two-effect and 10 measurement-chain datasets; each with its truth in
+``<datasets>/truth/<name>.truth.json``, as :mod:`analysis.studies.open_world_data` and
+:mod:`analysis.hidden` write them), one output
 folder per dataset, the folders taken in turn (a dataset whose loop.json exists is not rerun:
 the suite resumes, and one stopped early has scored datasets of every kind), then scores the
 verdicts against the truth:
@@ -48,9 +49,10 @@ FIGURE = "open_suite.png"
 #: a hand-written note in ``--out`` (how the loops were run, what the misses mean), appended to
 #: the README each time the suite is scored again
 NOTES = "NOTES.md"
-#: the blind suite: no-effect, one-effect and two-effect datasets (made by
-#: analysis.studies.open_world_data --nulls / --effects / --pairs)
-DATASETS_DIRS = tuple(RESULTS_DIR / "open_world" / k for k in ("nulls", "effects", "pairs"))
+#: the blind suite: no-effect, one-effect, two-effect and measurement-chain datasets (made by
+#: analysis.studies.open_world_data --nulls / --effects / --pairs / --chain)
+DATASETS_DIRS = tuple(RESULTS_DIR / "open_world" / k
+                      for k in ("nulls", "effects", "pairs", "chain"))
 #: the suite's loop settings beside the loop's defaults: the demo's blind loop's (its folder
 #: results/demo/blind_loop is the suite's eff_p01 loop, from the same runs)
 SUITE_PER_WAVE, SUITE_NULL_DRAWS = 6, 10
