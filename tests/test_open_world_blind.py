@@ -426,3 +426,18 @@ def test_goal_lines_count_the_chain_on_their_own():
     assert "one effect hidden that moves the data >= 3 sigma after recalibration (0 of 0)" in L
     L = "\n".join(goal_lines(summ[summ["dataset"] == "n3"]))
     assert "measurement-chain" not in L
+
+
+def test_suite_refuses_bad_loop_options_before_any_loop(tmp_path, capsys):
+    """open_suite's loop options are checked before any loop runs: an unknown --with-effect,
+    a negative --waves or --focus-points is exit 2 naming it, and nothing is written."""
+    from analysis.open_suite import main
+    (tmp_path / "ds" / "null_p00").mkdir(parents=True)
+    (tmp_path / "ds" / "null_p00" / "dataset.json").write_text("{}")
+    base = ["--datasets", str(tmp_path / "ds"), "--out", str(tmp_path / "out")]
+    for extra, what in ((["--with-effect", "jar_colour"], "jar_colour"),
+                        (["--waves", "-1"], "--waves"),
+                        (["--focus-points", "-2"], "--focus-points")):
+        assert main(base + extra) == 2
+        assert what in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
