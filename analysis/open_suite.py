@@ -73,9 +73,10 @@ def truth_strengths(truth) -> dict:
 
 
 def strength_ranges() -> dict:
-    """effect -> top of its diagnose range (the figure's unit of strength)."""
+    """effect -> top of its diagnose range (the figure's unit of strength): the DEM effects and
+    the measurement chain."""
     from analysis.catalog import candidates
-    return {k: c.s_max for k, c in candidates().items() if c.kind == "dem"}
+    return {k: c.s_max for k, c in candidates().items() if c.kind in ("dem", "observation")}
 
 
 def _interval(parameters, name):
@@ -110,8 +111,9 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
         if len(r):
             est, se = float(r["strength"].iloc[0]), float(r["strength_se"].iloc[0])
             row["%s_true" % k], row["%s_fit" % k], row["%s_se" % k] = s, est, se
-            iv = _interval(parameters, k)
-            cov.append(iv[0] <= s <= iv[1] if iv else abs(est - s) <= 1.96 * se)
+            iv = _interval(parameters, k) or (est - 1.96 * se, est + 1.96 * se)
+            row["%s_lo" % k], row["%s_hi" % k] = iv
+            cov.append(iv[0] <= s <= iv[1])
     row["covered"] = all(cov) if cov else np.nan
     for k, v in (truth.get("base_config") or {}).items():
         iv = _interval(parameters, k)

@@ -441,3 +441,28 @@ def test_suite_refuses_bad_loop_options_before_any_loop(tmp_path, capsys):
         assert main(base + extra) == 2
         assert what in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_figure_draws_the_interval_the_summary_scored():
+    """score() keeps each found effect's interval (the profile interval, else +- 1.96 se) as
+    <effect>_lo / _hi, and strength_points() draws that interval - an asymmetric profile
+    interval that covers the truth where fit +- 1.96 se would not - in units of the diagnose
+    range, the measurement chain included."""
+    import pandas as pd
+    from analysis.open_suite import score, strength_ranges
+    from analysis.plotting.open_suite_plots import strength_points
+    stairs = pd.DataFrame({"stage": ["calibrated"], "chi2_dof": [1.0]})
+    diag = pd.DataFrame([["smoothing_window", 1, True, 0.0040, 0.0001]],
+                        columns=["effect", "rank", "significant", "strength", "strength_se"])
+    par = pd.DataFrame({"name": ["smoothing_window"], "profile_lo": [0.0038],
+                        "profile_hi": [0.0049]})
+    truth = {"effects": {"smoothing_window": {"window_s": 0.0045}}}
+    with_profile = score("a", {}, diag, stairs, truth, par)
+    without = score("b", {}, diag, stairs, truth, None)
+    assert with_profile["covered"] and not without["covered"]
+    ranges = strength_ranges()
+    assert ranges["smoothing_window"] == pytest.approx(0.006) and "arc_motion" in ranges
+    pts = strength_points(pd.DataFrame([with_profile, without]), ranges)
+    np.testing.assert_allclose([p[1:] for p in pts],
+                               [[0.75, 0.4 / 0.6, 0.38 / 0.6, 0.49 / 0.6],
+                                [0.75, 0.4 / 0.6, 0.3804 / 0.6, 0.4196 / 0.6]])

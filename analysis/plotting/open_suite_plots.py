@@ -10,20 +10,26 @@ from analysis.plotting.marks import synthetic_title
 
 #: one colour per hidden-effect family of the catalog (others: grey)
 EFFECT_COLOURS = {"arc_motion": "tab:blue", "jar_compliance": "tab:orange",
-                  "viscoelastic_restitution": "tab:green", "powder_layer": "tab:red"}
+                  "viscoelastic_restitution": "tab:green", "powder_layer": "tab:red",
+                  "smoothing_window": "tab:purple", "apparent_scale": "tab:brown"}
 
 
 def strength_points(summ, s_max) -> list:
-    """(effect, true, fit, se) of every found hidden effect in the summary table, each as a
-    fraction of its ``s_max`` (effect -> top of its diagnose range) [-]."""
+    """(effect, true, fit, lo, hi) of every found hidden effect in the summary table - the
+    interval the summary scored (``<effect>_lo`` / ``_hi``: the profile interval, else
+    +- 1.96 se) - each as a fraction of its ``s_max`` (effect -> top of its diagnose range)."""
     out = []
     for _, r in summ.iterrows():
         for k, top in s_max.items():
             fit = r.get("%s_fit" % k)
             if fit is None or not np.isfinite(float(fit)):
                 continue
-            out.append((k, float(r["%s_true" % k]) / top, float(fit) / top,
-                        float(r["%s_se" % k]) / top))
+            lo, hi = r.get("%s_lo" % k), r.get("%s_hi" % k)
+            if lo is None or not np.isfinite(float(lo)):
+                se = float(r["%s_se" % k])
+                lo, hi = float(fit) - 1.96 * se, float(fit) + 1.96 * se
+            out.append((k, float(r["%s_true" % k]) / top, float(fit) / top, float(lo) / top,
+                        float(hi) / top))
     return out
 
 
@@ -31,19 +37,19 @@ def plot_strengths(summ, s_max, ax, *, synthetic: bool = True):
     """Fitted strength (with its 95 % interval) against the true one, both as fractions of the
     effect's diagnose range; the diagonal is a perfect fit."""
     pts = strength_points(summ, s_max)
-    for k, t, f, se in pts:
-        ax.errorbar(t, f, yerr=1.96 * se, fmt="o", ms=5, capsize=3,
-                    color=EFFECT_COLOURS.get(k, "0.5"))
+    for k, t, f, lo, hi in pts:
+        ax.errorbar(t, f, yerr=[[max(f - lo, 0.0)], [max(hi - f, 0.0)]], fmt="o", ms=5,
+                    capsize=3, color=EFFECT_COLOURS.get(k, "0.5"))
     for k, c in EFFECT_COLOURS.items():
         if any(p[0] == k for p in pts):
             ax.plot([], [], "o", color=c, label=k)
-    top = max([1.0] + [max(t, f + 1.96 * se) for _, t, f, se in pts])
+    top = max([1.0] + [max(t, hi) for _, t, f, lo, hi in pts])
     ax.plot([0, top], [0, top], "k--", lw=0.8)
     ax.set_xlim(0, top)
-    ax.set_ylim(min([0.0] + [f - 1.96 * se for _, t, f, se in pts]), top)
+    ax.set_ylim(min([0.0] + [lo for _, t, f, lo, hi in pts]), top)
     ax.set_xlabel("hidden strength [fraction of the diagnose range]")
     ax.set_ylabel("fitted strength, 95 % interval")
-    cov = sum(abs(f - t) <= 1.96 * se for _, t, f, se in pts)
+    cov = sum(lo <= t <= hi for _, t, f, lo, hi in pts)
     ax.set_title(synthetic_title("Strengths: %d of %d intervals cover the truth"
                                  % (cov, len(pts)), synthetic), fontsize=9)
     if pts:
