@@ -57,6 +57,9 @@ DATASETS_DIRS = tuple(RESULTS_DIR / "open_world" / k
 #: results/demo/blind_loop is the suite's eff_p01 loop, from the same runs)
 SUITE_PER_WAVE, SUITE_NULL_DRAWS = 6, 10
 SIGMA_CHECK_NAME = "sigma_check.csv"
+#: the catalog kinds a hidden effect of the suite's datasets shows in the observables (the DEM
+#: effects and the measurement chain; kinetics acts on the yields' line)
+OBSERVED_KINDS = ("dem", "observation")
 
 
 def truth_strengths(truth) -> dict:
@@ -76,7 +79,7 @@ def strength_ranges() -> dict:
     """effect -> top of its diagnose range (the figure's unit of strength): the DEM effects and
     the measurement chain."""
     from analysis.catalog import candidates
-    return {k: c.s_max for k, c in candidates().items() if c.kind in ("dem", "observation")}
+    return {k: c.s_max for k, c in candidates().items() if c.kind in OBSERVED_KINDS}
 
 
 def _interval(parameters, name):
@@ -199,12 +202,13 @@ def _true_hidden(truth) -> dict:
     """The hidden effects the observables see (DEM and measurement chain; not kinetics)."""
     from analysis.catalog import candidates
     return {k: v for k, v in truth_strengths(truth).items()
-            if candidates()[k].kind in ("dem", "observation")}
+            if candidates()[k].kind in OBSERVED_KINDS}
 
 
 def detectable_chi2(dataset, truth, loop_dir) -> float:
     """The chi2 the hidden effects (DEM or measurement chain) leave after recalibration without
-    them: the twin's own noise-free data at the truth, observed through the hidden chain (:func:`truth_observations`) fitted by the loop's model
+    them: the twin's own noise-free data at the truth, observed through the hidden chain
+    (:func:`truth_observations`), fitted by the loop's model
     (:func:`loop_model`) without effects, with the dataset's sds (one twin realisation: its
     chaos stays in, as in the data). NaN when no such effect is hidden or there is no model."""
     true = _true_hidden(truth)
@@ -217,11 +221,11 @@ def detectable_chi2(dataset, truth, loop_dir) -> float:
 
 
 def detectable_each(dataset, truth, loop_dir) -> dict:
-    """effect -> the chi2 each hidden DEM effect leaves beyond the others: the twin's
-    noise-free data at the truth, the base parameters fitted with every OTHER hidden effect on
-    (in the loop's model) at its true strength. An effect under :data:`DETECTABLE_CHI2` here cannot be told from a shift of
-    the base parameters once the other is found. {} when there is no DEM effect or a run is
-    missing."""
+    """effect -> the chi2 each hidden effect leaves beyond the others: the twin's noise-free
+    data at the truth, the base parameters fitted with every OTHER hidden effect on (in the
+    loop's model) at its true strength. An effect under :data:`DETECTABLE_CHI2` here cannot be
+    told from a shift of the base parameters once the other is found. {} when no such effect
+    is hidden or a run is missing."""
     true = _true_hidden(truth)
     if not true:
         return {}

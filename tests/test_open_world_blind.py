@@ -388,6 +388,15 @@ def test_chain_datasets_are_their_source_observed_through_the_hidden_chain(tmp_p
     obs = pd.DataFrame({"condition_id": ["c1", "c1"], "observable": ["v_mean_m_s", "f_col_hz"],
                         "value": [0.0, 0.0], "sd": [1.0, 1.0]})
     np.testing.assert_allclose(truth_observations(obs, truth)["value"], [1.79 / 1.08, 44.0])
+    # a destination this project did not write: refused before anything is written
+    from analysis.atomic_dir import OutputError
+    (out / "chain_p03").mkdir()
+    (out / "chain_p03" / "mine.txt").write_text("a user's file")
+    with pytest.raises(OutputError):
+        owd.make_chain("chain_p03", ("apparent_scale", {"blur_fraction": 0.05}, "null_p10"),
+                       nulls, out)
+    assert sorted(p.name for p in (out / "chain_p03").iterdir()) == ["mine.txt"]
+    assert not (out / "truth" / "chain_p03.truth.json").exists()
     cases = owd.chain_cases(6)
     assert owd.chain_cases(6) == cases
     assert [c[0] for c in cases.values()] == list(owd.HIDDEN_OBSERVATION) * 3

@@ -195,6 +195,7 @@ def make_chain(name, case, nulls_dir, out_dir):
     from analysis.measurements import Dataset, load_dataset, write_dataset
     effect, spec, source = case
     nulls_dir, out_dir = Path(nulls_dir), Path(out_dir)
+    _, truth_file = check_outputs(name, out_dir / name, out_dir / "truth")   # before any write
     ds = load_dataset(nulls_dir / source)
     truth = json.loads((nulls_dir / "truth" / ("%s.truth.json" % source)).read_text())
     if effect == "smoothing_window":
@@ -227,7 +228,6 @@ def make_chain(name, case, nulls_dir, out_dir):
     t = dict(truth, name=name, effects={effect: strength},
              observation={"effect": effect, "made_from": source, **spec, **extra,
                           "factor": factor})
-    _, truth_file = check_outputs(name, out_dir / name, out_dir / "truth")
     with atomic_file(truth_file) as tmp:
         tmp.write_text(json.dumps(t, indent=1))
     return path, truth_file
