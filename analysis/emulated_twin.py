@@ -30,7 +30,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import pandas as pd
 
-from analysis.emulator import GPEmulator, Prediction
+from analysis.emulator import GPEmulator, ModeClassifier, Prediction, mix_modes
 from analysis.history_matching import (DesignSpace, design_runs, effect_input,
                                        initial_design, next_wave)
 
@@ -197,29 +197,49 @@ class EmulatedTwin:
         return X[list(self.bounds())]
 
     def fit(self, runs: pd.DataFrame):
-        """Fit one emulator per observable to every run where it is finite (a run in another
-        motion mode has no impact observables).
+        """Fit the motion-mode classifier and one emulator per observable and mode to every
+        run where the observable is finite (a run in another motion mode may have no impact
+        observables).
 
         runs : DataFrame with columns config (the run config), the design's effect inputs
-            (``effect:<name>``), and the observables
+            (``effect:<name>``), the observables and ``motion_mode`` (without it: one mode)
         """
         X = self.inputs_of(runs)
         b = self.bounds()
+        modes = self.mode_labels(runs)
+        self.mode_classifier_ = ModeClassifier(b, random_state=self.seed).fit(X, modes)
         self.emulators_ = {}
         for o in self.observables:
             y = runs[o].to_numpy(float) if o in runs else np.full(len(runs), np.nan)
-            ok = np.isfinite(y)
-            if ok.sum() < len(b) + 2:
-                raise ValueError("the emulator of %s needs at least %d runs where it is "
-                                 "finite, has %d" % (o, len(b) + 2, int(ok.sum())))
-            em = GPEmulator(b, outputs=(o,), nu=2.5, trend=True,
-                            log_outputs=tuple(x for x in LOG_OBSERVABLES if x == o),
-                            noise_keys=CONDITION_INPUTS, n_restarts_optimizer=1,
-                            random_state=self.seed)
-            self.emulators_[o] = em.fit(X[ok], pd.DataFrame({o: y[ok]}))
+            self.emulators_[o] = {}
+            for k in self.mode_classifier_.modes_:
+                ok = np.isfinite(y) & (modes == k)
+                if ok.sum() < len(b) + 2:
+                    raise ValueError("the emulator of %s needs at least %d runs where it is "
+                                     "finite, has %d" % (o, len(b) + 2, int(ok.sum())))
+                em = GPEmulator(b, outputs=(o,), nu=2.5, trend=True,
+                                log_outputs=tuple(x for x in LOG_OBSERVABLES if x == o),
+                                noise_keys=CONDITION_INPUTS, n_restarts_optimizer=1,
+                                random_state=self.seed)
+                self.emulators_[o][k] = em.fit(X[ok], pd.DataFrame({o: y[ok]}))
         self.runs_ = runs.reset_index(drop=True)
         self._memo = {}
         return self
+
+    def mode_labels(self, runs: pd.DataFrame) -> np.ndarray:
+        """Each run's motion mode as the emulators are split by it: a mode with fewer runs
+        than one emulator needs (every observable finite in at least ``inputs + 2`` of them)
+        joins the most common mode - its runs are then scatter about that mode's emulator, as
+        they were about the single emulator before the modes were split."""
+        raw = (runs["motion_mode"].astype(str).to_numpy() if "motion_mode" in runs
+               else np.full(len(runs), "any"))
+        finite = np.ones(len(runs), bool)
+        for o in self.observables:
+            finite &= np.isfinite(runs[o].to_numpy(float)) if o in runs else False
+        need = len(self.bounds()) + 2
+        counts = pd.Series(raw[finite]).value_counts()
+        major = [k for k, n in counts.items() if n >= need] or list(counts.index[:1])
+        return np.where(np.isin(raw, major), raw, major[0]).astype(object)
 
     # ------------------------------------------------------------------ predictions
     def _inputs(self, points) -> np.ndarray:
@@ -255,17 +275,23 @@ class EmulatedTwin:
         X = self._inputs(points)
         n_p, n_c = len(X) // len(self._X_cond), len(self._X_cond)
         out = {}
-        for o, em in self.emulators_.items():
+        P = self.mode_classifier_.predict_proba(X)
+        for o, ems in self.emulators_.items():
             if not sd:
-                m = em.predict(X)
-                z = np.zeros_like(m)
-                out[o] = Prediction(m[:, 0].reshape(n_p, n_c), z[:, 0].reshape(n_p, n_c),
-                                    z[:, 0].reshape(n_p, n_c))
+                m = np.sum(P * np.column_stack([em.predict(X)[:, 0] for em in ems.values()]),
+                           axis=1).reshape(n_p, n_c)
+                out[o] = Prediction(m, np.zeros_like(m), np.zeros_like(m))
                 continue
-            p = em.predict_parts(X, block=n_c)
+            if len(ems) == 1:
+                p = next(iter(ems.values())).predict_parts(X, block=n_c)
+            else:
+                p = mix_modes([em.predict_parts(X, block=n_c) for em in ems.values()], P,
+                              block=n_c)
             out[o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
                                   for a in (p.mean, p.latent_sd, p.chaos_sd)),
-                                latent_corr=p.latent_corr[:, 0])
+                                latent_corr=p.latent_corr[:, 0],
+                                mode_dev=None if p.mode_dev is None
+                                else p.mode_dev[:, 0].reshape(n_p, n_c, -1))
         return out
 
     def point_vector(self, theta, effects=None) -> np.ndarray:
@@ -310,7 +336,8 @@ class EmulatedTwin:
         parts = self.dem_parts(np.vstack(vs))
         for i, k in enumerate(keys):
             self._memo[k] = {o: Prediction(p.mean[i:i + 1], p.latent_sd[i:i + 1],
-                                           p.chaos_sd[i:i + 1], p.latent_corr[i:i + 1])
+                                           p.chaos_sd[i:i + 1], p.latent_corr[i:i + 1],
+                                           None if p.mode_dev is None else p.mode_dev[i:i + 1])
                              for o, p in parts.items()}
 
     def _assemble(self, parts, theta, effects, which):
@@ -368,6 +395,15 @@ class EmulatedTwin:
         S = np.zeros((J.shape[1], J.shape[1]))
         for i, b in enumerate(blocks):
             S[i * n_c:(i + 1) * n_c, i * n_c:(i + 1) * n_c] = b
+        if parts[v_col].mode_dev is not None:
+            # one run is in one mode for all its observables: the modes' spread at a condition
+            # moves them together (its diagonal is already in each observable's block)
+            for c in range(n_c):
+                D = np.array([parts[o].mode_dev[0, c] for o in names])
+                B = D @ D.T
+                np.fill_diagonal(B, 0.0)
+                idx = np.arange(len(names)) * n_c + c
+                S[np.ix_(idx, idx)] += B
         return J @ S @ J.T
 
     def _observed(self, parts, effects):
@@ -429,9 +465,11 @@ class EmulatedTwin:
         return self._assemble(self._parts_at(theta, effects), theta, effects, "mean")
 
     def model_se(self, theta=None, effects=None) -> pd.Series:
-        """The emulator's sd of the twin's mean response at ``theta`` (default theta_ref)."""
-        theta = dict(theta or self.theta_ref)
-        return self._assemble(self._parts_at(theta, effects), theta, effects, "latent_sd")
+        """The emulator's sd of the twin's mean response at ``theta`` (default theta_ref): the
+        square root of :meth:`model_cov`'s diagonal (a yield's carries the covariance of the
+        speed and the rate that the motion modes' spread gives them)."""
+        return pd.Series(np.sqrt(np.maximum(np.diag(self.model_cov(theta, effects)), 0.0)),
+                         index=self.keys)
 
     def model_cov(self, theta=None, effects=None) -> np.ndarray:
         """The emulator's covariance of the twin's mean response at ``theta`` (default

@@ -83,11 +83,16 @@ class Prediction:
         emulator's errors between the rows of each block of ``block`` consecutive inputs (one
         design point's conditions: one smooth response, so its errors at neighbouring
         conditions move together; :meth:`GPEmulator.predict_parts` with ``block``)
+    mode_dev : None, or shape (n, n_outputs, n_modes) - of a mixture over motion modes
+        (:func:`mix_modes`): sqrt(p_k) (mean_k - mean), whose sum of squares over the modes is
+        the between-mode share of ``latent_sd`` squared; the same run is in one mode for every
+        observable, so these deviations of two observables at one input are correlated
     """
     mean: np.ndarray
     latent_sd: np.ndarray
     chaos_sd: np.ndarray
     latent_corr: np.ndarray | None = None
+    mode_dev: np.ndarray | None = None
 
     def sd(self, n_runs=1):
         """sd of the mean of ``n_runs`` new twin runs (np.inf: the mean response itself)."""
@@ -95,7 +100,37 @@ class Prediction:
         return np.sqrt(self.latent_sd ** 2 + chaos)
 
 
-class GPEmulator:
+class _UnitCube:
+    """Inputs named by ``bounds`` (name -> (lower, upper)), scaled to the centred unit cube."""
+
+    @property
+    def inputs(self):
+        return list(self.bounds)
+
+    def _raw_inputs(self, X):
+        if isinstance(X, pd.DataFrame):
+            missing = [c for c in self.inputs if c not in X.columns]
+            if missing:
+                raise ValueError("emulator input table lacks column(s) %s" % ", ".join(missing))
+            X = X[self.inputs].to_numpy(float)
+        X = np.atleast_2d(np.asarray(X, float))
+        if X.shape[1] != len(self.inputs):
+            raise ValueError("emulator inputs need %d columns (%s), got %d"
+                             % (len(self.inputs), ", ".join(self.inputs), X.shape[1]))
+        if not np.isfinite(X).all():
+            raise ValueError("emulator inputs hold NaN or inf")
+        return X
+
+    def _scale(self, X):
+        X = self._raw_inputs(X)
+        lo = np.array([self.bounds[k][0] for k in self.inputs], float)
+        hi = np.array([self.bounds[k][1] for k in self.inputs], float)
+        if np.any(hi <= lo):
+            raise ValueError("emulator bounds must have upper > lower: %s" % self.bounds)
+        return (X - lo) / (hi - lo) - 0.5
+
+
+class GPEmulator(_UnitCube):
     """GP emulator with inputs scaled to the centred unit cube.
 
     Parameters
@@ -131,32 +166,6 @@ class GPEmulator:
         self.random_state = random_state
 
     # ---------------------------------------------------------------------------- helpers
-    @property
-    def inputs(self):
-        return list(self.bounds)
-
-    def _raw_inputs(self, X):
-        if isinstance(X, pd.DataFrame):
-            missing = [c for c in self.inputs if c not in X.columns]
-            if missing:
-                raise ValueError("emulator input table lacks column(s) %s" % ", ".join(missing))
-            X = X[self.inputs].to_numpy(float)
-        X = np.atleast_2d(np.asarray(X, float))
-        if X.shape[1] != len(self.inputs):
-            raise ValueError("emulator inputs need %d columns (%s), got %d"
-                             % (len(self.inputs), ", ".join(self.inputs), X.shape[1]))
-        if not np.isfinite(X).all():
-            raise ValueError("emulator inputs hold NaN or inf")
-        return X
-
-    def _scale(self, X):
-        X = self._raw_inputs(X)
-        lo = np.array([self.bounds[k][0] for k in self.inputs], float)
-        hi = np.array([self.bounds[k][1] for k in self.inputs], float)
-        if np.any(hi <= lo):
-            raise ValueError("emulator bounds must have upper > lower: %s" % self.bounds)
-        return (X - lo) / (hi - lo) - 0.5
-
     def _is_log(self):
         return np.array([o in tuple(self.log_outputs) for o in self.outputs])
 
@@ -444,6 +453,111 @@ class GPEmulator:
         mean, var, chaos, _ = self._predict_model_units(X)
         return _error_table(self.outputs, Y, mean, np.sqrt(var + chaos), self.noise_sd(),
                             self._is_log())
+
+
+class ModeClassifier(_UnitCube):
+    """The twin's motion mode at an input: p(mode | x) from a Gaussian-process classifier.
+
+    The single ball's motion falls into modes (end-to-end flights, chatter at one end, ...)
+    whose observables differ by far more than a run's chaos - chatter's collision rate is
+    70 /s where the end-to-end flights at the same condition give 50 /s - and which mode a run
+    takes changes with the contact parameters and the condition, sharply but not at one clean
+    boundary (two seeds near it can land in different modes). One smooth emulator across the
+    modes averages them and states the average as sure: at a point deep in chatter it predicts
+    the mid-way value with an sd a tenth of the miss. With this classifier each mode has its
+    own emulator and the prediction is their mixture (:func:`mix_modes`).
+
+    scikit-learn's ``GaussianProcessClassifier`` (Laplace approximation, one-vs-rest for more
+    than two modes) with a Matern 5/2 ARD kernel on the unit cube; its probabilities hold both
+    the seed-to-seed chance of a mode and the classifier's ignorance where runs are few.
+
+    Parameters
+    ----------
+    bounds : dict name -> (lower, upper) - inputs, as :class:`GPEmulator`'s
+    random_state : int or None
+    n_restarts_optimizer : int
+
+    Attributes (after :meth:`fit`)
+    ----------
+    modes_ : list of str - the modes, in the order of :meth:`predict_proba`'s columns
+    """
+
+    def __init__(self, bounds, random_state=None, n_restarts_optimizer=1):
+        self.bounds = bounds
+        self.random_state = random_state
+        self.n_restarts_optimizer = n_restarts_optimizer
+
+    def fit(self, X, modes):
+        """Learn p(mode | x) from runs' inputs X and their modes (a sequence of labels)."""
+        from sklearn.gaussian_process import GaussianProcessClassifier
+        Xs = self._scale(X)
+        labels = np.asarray(modes, dtype=object).astype(str)
+        if len(labels) != len(Xs):
+            raise ValueError("X has %d rows, modes %d" % (len(Xs), len(labels)))
+        self.modes_ = sorted(set(labels))
+        self.gpc_ = None
+        if len(self.modes_) > 1:
+            kern = (ConstantKernel(1.0, (1e-2, 1e3))
+                    * Matern(length_scale=np.full(Xs.shape[1], 0.5),
+                             length_scale_bounds=(1e-2, 1e2), nu=2.5))
+            self.gpc_ = GaussianProcessClassifier(
+                kern, n_restarts_optimizer=self.n_restarts_optimizer,
+                random_state=self.random_state)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ConvergenceWarning)
+                self.gpc_.fit(Xs, labels)
+        return self
+
+    def predict_proba(self, X) -> np.ndarray:
+        """(n, n_modes) probabilities of each mode at X (columns in the order of ``modes_``)."""
+        Xs = self._scale(X)
+        if self.gpc_ is None:
+            return np.ones((len(Xs), 1))
+        p = self.gpc_.predict_proba(Xs)
+        order = [list(self.gpc_.classes_).index(k) for k in self.modes_]
+        return p[:, order]
+
+
+def mix_modes(parts, probs, block=None) -> Prediction:
+    """The mixture over motion modes of one output's per-mode predictions.
+
+    parts : list of Prediction, one per mode, each of shape (n, 1) (with ``latent_corr`` in
+        blocks of ``block`` rows when given); probs : (n, n_modes) - p(mode | x)
+
+    A new run at x is in mode k with probability p_k: its mean is sum p_k m_k, and the
+    uncertainty about the twin's value there is each mode's emulator uncertainty weighted by
+    p_k plus the spread between the modes' means, sum p_k (m_k - m)^2 - counted as the
+    emulator's (latent) uncertainty: it is what the data's one realisation may differ by,
+    and what more runs about x shrink by sharpening p. Each mode's chaos is weighted by p_k.
+    Between two rows of a block (one point's conditions) the modes are taken independent and
+    each mode's emulator errors correlated as its GP says: sum_k p_ik p_jk C_k(i, j).
+    """
+    P = np.asarray(probs, float)
+    if len(parts) != P.shape[1]:
+        raise ValueError("mix_modes: %d predictions for %d modes" % (len(parts), P.shape[1]))
+    M = np.stack([q.mean[:, 0] for q in parts], axis=1)           # (n, K)
+    mean = np.sum(P * M, axis=1)
+    dev = np.sqrt(P) * (M - mean[:, None])
+    within = np.sum(P * np.stack([q.latent_sd[:, 0] ** 2 for q in parts], axis=1), axis=1)
+    lat = np.sqrt(within + np.sum(dev ** 2, axis=1))
+    chaos = np.sqrt(np.sum(P * np.stack([q.chaos_sd[:, 0] ** 2 for q in parts], axis=1),
+                           axis=1))
+    corr = None
+    if block is not None and all(q.latent_corr is not None for q in parts):
+        n_b = len(mean) // block
+        corr = np.empty((n_b, 1, block, block))
+        for b in range(n_b):
+            r = slice(b * block, (b + 1) * block)
+            c = sum(np.outer(P[r, k], P[r, k]) * q.latent_corr[b, 0]
+                    * np.outer(q.latent_sd[r, 0], q.latent_sd[r, 0])
+                    for k, q in enumerate(parts))
+            sd = lat[r]
+            ok = sd > 1e-300
+            cc = np.eye(block)
+            cc[np.ix_(ok, ok)] = np.clip(c[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok]), -1, 1)
+            np.fill_diagonal(cc, 1.0)
+            corr[b, 0] = cc
+    return Prediction(mean[:, None], lat[:, None], chaos[:, None], corr, dev[:, None, :])
 
 
 def _error_table(outputs, y, m, s, noise, is_log):
