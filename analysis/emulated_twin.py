@@ -226,6 +226,15 @@ class EmulatedTwin:
         self._memo = {}
         return self
 
+    def mode_counts(self) -> dict:
+        """{mode: {"runs": n, "emulated_as": mode}} of the training runs: the modes each has its
+        own emulator for, and the rarer ones with the mode whose emulator took their runs."""
+        raw = (self.runs_["motion_mode"].astype(str) if "motion_mode" in self.runs_
+               else pd.Series("any", index=self.runs_.index))
+        used = pd.Series(self.mode_labels(self.runs_), index=self.runs_.index)
+        return {k: {"runs": int(n), "emulated_as": str(used[raw == k].iloc[0])}
+                for k, n in raw.value_counts().items()}
+
     def mode_labels(self, runs: pd.DataFrame) -> np.ndarray:
         """Each run's motion mode as the emulators are split by it: a mode with fewer runs
         than one emulator needs (every observable finite in at least ``inputs + 2`` of them)
