@@ -204,13 +204,14 @@ class EmulatedTwin:
         runs : DataFrame with columns config (the run config), the design's effect inputs
             (``effect:<name>``), the observables and ``motion_mode`` (without it: one mode)
         """
-        X = self.inputs_of(runs)
         b = self.bounds()
         modes = self.mode_labels(runs)
+        keep = np.array([k is not None for k in modes], bool)
+        X, modes, kept = self.inputs_of(runs)[keep], modes[keep], runs[keep]
         self.mode_classifier_ = ModeClassifier(b, random_state=self.seed).fit(X, modes)
         self.emulators_ = {}
         for o in self.observables:
-            y = runs[o].to_numpy(float) if o in runs else np.full(len(runs), np.nan)
+            y = kept[o].to_numpy(float) if o in kept else np.full(len(kept), np.nan)
             self.emulators_[o] = {}
             for k in self.mode_classifier_.modes_:
                 ok = np.isfinite(y) & (modes == k)
@@ -227,19 +228,21 @@ class EmulatedTwin:
         return self
 
     def mode_counts(self) -> dict:
-        """{mode: {"runs": n, "emulated_as": mode}} of the training runs: the modes each has its
-        own emulator for, and the rarer ones with the mode whose emulator took their runs."""
-        raw = (self.runs_["motion_mode"].astype(str) if "motion_mode" in self.runs_
-               else pd.Series("any", index=self.runs_.index))
-        used = pd.Series(self.mode_labels(self.runs_), index=self.runs_.index)
-        return {k: {"runs": int(n), "emulated_as": str(used[raw == k].iloc[0])}
-                for k, n in raw.value_counts().items()}
+        """{mode: {"runs": n, "emulated": bool}} of the training runs: the modes with an
+        emulator of their own, and the rarer ones whose runs were left out."""
+        raw = (self.runs_["motion_mode"].astype(str).to_numpy() if "motion_mode" in self.runs_
+               else np.full(len(self.runs_), "any"))
+        used = self.mode_labels(self.runs_)
+        return {str(k): {"runs": int(n), "emulated": used[raw == k][0] is not None}
+                for k, n in pd.Series(raw).value_counts().items()}
 
     def mode_labels(self, runs: pd.DataFrame) -> np.ndarray:
-        """Each run's motion mode as the emulators are split by it: a mode with fewer runs
-        than one emulator needs (every observable finite in at least ``inputs + 2`` of them)
-        joins the most common mode - its runs are then scatter about that mode's emulator, as
-        they were about the single emulator before the modes were split."""
+        """Each run's motion mode as the emulators are split by it, None for a run left out:
+        a mode with fewer runs than one emulator needs (every observable finite in at least
+        ``inputs + 2`` of them) is a different motion the runs hold too few of to emulate (the
+        ball at rest in a corner: f_col 0) - its runs would be outliers of the mode they joined
+        - and is left out of the emulators and the classifier (listed by :meth:`mode_counts`).
+        Runs without a ``motion_mode`` column are one mode."""
         raw = (runs["motion_mode"].astype(str).to_numpy() if "motion_mode" in runs
                else np.full(len(runs), "any"))
         finite = np.ones(len(runs), bool)
@@ -248,7 +251,7 @@ class EmulatedTwin:
         need = len(self.bounds()) + 2
         counts = pd.Series(raw[finite]).value_counts()
         major = [k for k, n in counts.items() if n >= need] or list(counts.index[:1])
-        return np.where(np.isin(raw, major), raw, major[0]).astype(object)
+        return np.where(np.isin(raw, major), raw, None).astype(object)
 
     # ------------------------------------------------------------------ predictions
     def _inputs(self, points) -> np.ndarray:

@@ -196,8 +196,7 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert info["model"] == "emulator" and info["new_runs"] == len(runs)
     assert info["fake_twin"] is True
     # the FAKE twin has one mode ("fake"): one emulator per observable, every run in it
-    assert info["motion_modes"] == {"fake": {"runs": info["n_model_runs"],
-                                             "emulated_as": "fake"}}
+    assert info["motion_modes"] == {"fake": {"runs": info["n_model_runs"], "emulated": True}}
     page = (out / "report.md").read_text()
     assert page.startswith("# The loop on fk (SYNTHETIC)")
     assert "## Focus wave" in page and "| before the focus wave |" in page
