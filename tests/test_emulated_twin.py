@@ -349,3 +349,23 @@ def test_the_modes_spread_moves_the_observables_of_one_condition_together(moded)
     i = m.keys.get_loc(("c1", "v_mean_m_s"))
     j = m.keys.get_loc(("c1", "f_col_hz"))
     assert K[i, j] / (se[i] * se[j]) < -0.3
+
+
+def test_a_mode_too_rare_to_emulate_is_left_out(moded):
+    """Three runs of a rare motion (the ball at rest: speed and rate near 0) beside the toy's
+    modes: left out of the model - its predictions are those without them to rounding - and
+    listed as not emulated; with them pooled into a mode they would be outliers of it."""
+    m, runs = moded["split"], moded["runs"]
+    slow = runs.iloc[:3].copy()
+    slow["motion_mode"] = "slow"
+    for k in ("v_mean_m_s", "v_mean_jar_m_s", "f_col_hz"):
+        slow[k] = 0.0 if k == "f_col_hz" else 0.07
+    with threadpool_limits(1):
+        m2 = EmulatedTwin(CONDITIONS, space(), theta_ref=m.theta_ref)
+        m2.fit(pd.concat([runs, slow], ignore_index=True))
+    counts = m2.mode_counts()
+    assert counts["slow"] == {"runs": 3, "emulated": False}
+    assert counts["chatter"]["emulated"] and counts["end_to_end"]["emulated"]
+    th = {"restitution": 0.3, "amplitude_m": 0.013}
+    assert np.allclose(m2.predict(th), m.predict(th), rtol=1e-6)
+    assert np.allclose(m2.model_se(th), m.model_se(th), rtol=1e-6)
