@@ -364,3 +364,39 @@ def test_posterior_cloud_follows_a_ridge_with_the_conditional_spread():
     assert np.corrcoef(pts[e0], pts["restitution"])[0, 1] < -0.6    # along the ridge
     bins = np.floor((pts[e0].to_numpy() - lo) / (hi - lo) * 400).astype(int)
     assert sorted(bins) == list(range(400))
+
+
+def test_mix_modes_has_the_moments_of_the_mixture():
+    """mix_modes against a Monte-Carlo draw of the mixture it describes: a new run is in mode k
+    with probability p_k, the mode's mean uncertain by its latent sd, plus its chaos - the
+    mixture's mean and total variance match the draw's to sampling error; a block's
+    cross-condition covariance is sum_k p_ik p_jk C_k(i, j); one mode with p = 1 gives that
+    mode back."""
+    from analysis.emulator import Prediction, mix_modes
+    rng = np.random.default_rng(4)
+    p = np.array([[0.3, 0.7], [0.9, 0.1]])
+    m = [np.array([[50.0], [52.0]]), np.array([[70.0], [71.0]])]
+    lat = [np.array([[1.0], [2.0]]), np.array([[3.0], [1.5]])]
+    ch = [np.array([[0.5], [0.6]]), np.array([[0.2], [0.3]])]
+    corr = [np.array([[[[1.0, 0.8], [0.8, 1.0]]]]), np.array([[[[1.0, 0.5], [0.5, 1.0]]]])]
+    parts = [Prediction(m[k], lat[k], ch[k], corr[k]) for k in range(2)]
+    mix = mix_modes(parts, p, block=2)
+    n = 400_000
+    for i in range(2):
+        k = (rng.uniform(size=n) < p[i, 1]).astype(int)
+        mu = np.where(k, m[1][i, 0], m[0][i, 0])
+        sd = np.sqrt(np.where(k, lat[1][i, 0] ** 2 + ch[1][i, 0] ** 2,
+                              lat[0][i, 0] ** 2 + ch[0][i, 0] ** 2))
+        y = mu + sd * rng.standard_normal(n)
+        assert mix.mean[i, 0] == pytest.approx(y.mean(), abs=4 * y.std() / np.sqrt(n))
+        total = mix.latent_sd[i, 0] ** 2 + mix.chaos_sd[i, 0] ** 2
+        assert total == pytest.approx(y.var(), rel=0.01)
+        assert np.sum(mix.mode_dev[i, 0] ** 2) == pytest.approx(
+            np.sum(p[i] * (np.array([m[0][i, 0], m[1][i, 0]]) - mix.mean[i, 0]) ** 2))
+    cov01 = sum(p[0, k] * p[1, k] * corr[k][0, 0, 0, 1] * lat[k][0, 0] * lat[k][1, 0]
+                for k in range(2))
+    assert mix.latent_corr[0, 0, 0, 1] * mix.latent_sd[0, 0] * mix.latent_sd[1, 0] == \
+        pytest.approx(cov01)
+    one = mix_modes(parts[:1], np.ones((2, 1)), block=2)
+    assert np.allclose(one.mean, m[0]) and np.allclose(one.latent_sd, lat[0])
+    assert np.allclose(one.chaos_sd, ch[0]) and np.allclose(one.latent_corr, corr[0])
