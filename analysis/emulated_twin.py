@@ -2,7 +2,9 @@
 for it, built in waves of one design.
 
 :class:`EmulatedTwin` holds one GP emulator (:class:`analysis.emulator.GPEmulator`) per
-observable the loop compares - the speed in the dataset's frame, f_col and, where the dataset's
+motion mode (end-to-end flights, chatter: :meth:`EmulatedTwin.mode_labels`) and observable the
+loop compares, and a classifier of the mode (:class:`analysis.emulator.ModeClassifier`); it
+predicts their mixture (:func:`analysis.emulator.mix_modes`). The observables: the speed in the dataset's frame, f_col and, where the dataset's
 tracks carry the jar, the impact observables of :mod:`analysis.flights` - over the base
 parameters, every candidate effect's strength JOINTLY (an effect's response at another
 restitution is learned, not assumed equal to one anchor's) and the conditions' frequency and

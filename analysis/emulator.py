@@ -1,4 +1,6 @@
-"""The one GP emulator of the twin: (parameters, effect strengths, conditions) -> outputs.
+"""The one GP emulator of the twin: (parameters, effect strengths, conditions) -> outputs; and
+the classifier of the twin's motion mode with the mixture of one emulator per mode
+(:class:`ModeClassifier`, :func:`mix_modes`; used by :mod:`analysis.emulated_twin`).
 
 One scikit-learn ``GaussianProcessRegressor`` per output. Inputs are scaled to the centred unit
 cube [-0.5, 0.5] from declared bounds; outputs are normalised (``log_outputs`` are modelled as
