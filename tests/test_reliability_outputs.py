@@ -501,8 +501,9 @@ def test_ctrl_c_during_the_imports_is_one_line_and_130(work):
                          cwd=str(work), env=env, stdout=subprocess.PIPE,
                          preexec_fn=_default_sigint,
                          stderr=subprocess.PIPE, text=True)
-    time.sleep(1.0)                        # the interpreter is up; the imports take seconds
-    p.send_signal(signal.SIGINT)
+    _wait_until_sigint_is_caught(p.pid)    # the interpreter is up (not a fixed sleep: on a
+    time.sleep(0.3)                        # loaded machine its start alone can take 1 s);
+    p.send_signal(signal.SIGINT)           # the imports take seconds
     out, err = p.communicate(timeout=120)
     lines = err.strip().splitlines()
     assert p.returncode == 130, (p.returncode, err)
@@ -697,6 +698,20 @@ def test_the_other_writers_accept_their_own_earlier_output(work):
     assert jar.check_out(REPO_ROOT / "geometry" / "mm400_25ml.stl")   # the committed jar
     assert jar.main(["--out", str(work / "foreign.csv")]) == 2
     assert (work / "foreign.csv").read_text() == "x,y\n1,2\n"
+
+
+def _wait_until_sigint_is_caught(pid, timeout_s=20.0):
+    """Wait until process ``pid`` catches SIGINT (Linux: bit 2 of SigCgt in /proc/<pid>/status):
+    Python has installed a handler, so a Ctrl-C now meets Python, not the default disposition."""
+    t_end = time.time() + timeout_s
+    while time.time() < t_end:
+        try:
+            for line in Path("/proc/%d/status" % pid).read_text().splitlines():
+                if line.startswith("SigCgt:") and int(line.split()[1], 16) & (1 << 1):
+                    return
+        except OSError:
+            return
+        time.sleep(0.01)
 
 
 def _default_sigint():
