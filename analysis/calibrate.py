@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import solve_triangular
 import pandas as pd
 
 from analysis.atomic_dir import OutputError, check_out_dir, output_dir
@@ -118,31 +117,25 @@ class CalibrationResult:
 
 class Posterior:
     """log posterior of the base parameters on the loop's emulator: a uniform prior on the
-    box, the likelihood every fit of the loop uses (its sd at each point)."""
+    box, the likelihood every fit of the loop uses (:class:`analysis.diagnose.Problem` on
+    the model: the emulator's covariance at each point, its motion modes' mixture)."""
 
     def __init__(self, model, obs):
+        from analysis.diagnose import Problem
+        from analysis.loop import WithAdded
         self.model = model
         self.params = list(model.base_params())
         self.names = [p.name for p in self.params]
         self.lo = np.array([p.lower for p in self.params])
         self.hi = np.array([p.upper for p in self.params])
-        self.keys = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
-        self.y = obs["value"].to_numpy(float)
-        self.var_data = obs["sd"].to_numpy(float) ** 2
-        self._idx = model.keys.get_indexer(self.keys)
-        if np.any(self._idx < 0):
-            raise ValueError("the emulator has no observable %r"
-                             % (self.keys[int(np.argmin(self._idx))],))
+        self.problem = Problem(model.predict, obs, self.params, [], WithAdded(model, {}).model_se(),
+                               None, 1e-3, None)
 
     def one(self, theta: dict) -> float:
-        """log L: Gaussian with the covariance diag(sd^2) + the emulator's own at ``theta``
-        (its errors correlated across conditions), as every fit of the loop scores it."""
-        mu = self.model.predict(theta, {}).reindex(self.keys).to_numpy(float)
-        S = self.model.model_cov(theta, {})[np.ix_(self._idx, self._idx)]
-        S[np.diag_indices_from(S)] += self.var_data
-        L = np.linalg.cholesky(S)
-        r = solve_triangular(L, self.y - mu, lower=True, check_finite=False)
-        return float(-0.5 * (r @ r) - np.sum(np.log(np.diag(L))))
+        """log L up to a constant: -(chi2 + the log-determinant and mode rows) / 2."""
+        p = self.problem
+        r = p.white(p.y - p.mu(theta, {}), {}, theta)
+        return float(-0.5 * (r @ r + p.penalty({}, theta)))
 
     def __call__(self, x):
         x = np.atleast_2d(x)

@@ -178,6 +178,8 @@ class FitResult:
         scored with when the model's errors correlate between observations (then chi2 is
         the Mahalanobis distance |chol^-1 (measured - model)|^2, not the sum of residuals^2);
         None: the covariance is diag(sigma^2)
+    mode : ndarray or None, per key the motion mode the fit scored it in (a model with
+        modes: the likelihood's mixture, :class:`Problem`); None without modes
     penalty : float, sum log(sigma^2 / sd^2) at the optimum when sigma depends on the
         parameters (a callable model_se) or the strength (``effect_se``), else 0 (sd the data's
         own, the same reference in every fit on these observations); ``objective`` = chi2 + penalty (-2 log likelihood up
@@ -196,6 +198,7 @@ class FitResult:
     sigma: np.ndarray | None = None
     penalty: float = 0.0
     chol: np.ndarray | None = None
+    mode: np.ndarray | None = None
 
     def whiten(self, v):
         """A pattern in units of sigma per key (a z-vector, or columns of them) in the metric
@@ -372,6 +375,32 @@ def prefetcher(predict):
     return f
 
 
+#: a motion mode whose probability at a condition is below exp(this) is not scored there
+LOG_P_NEGLIGIBLE = -20.0
+
+
+def _cholesky(S):
+    """Lower Cholesky factor of a covariance, what rounding left not positive dropped."""
+    try:
+        return np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        w, U = np.linalg.eigh(S)
+        floor = 1e-12 * max(float(np.min(np.diag(S))), 1e-300)
+        return np.linalg.cholesky((U * np.maximum(w, floor)) @ U.T)
+
+
+@dataclass(frozen=True)
+class _ModeFit:
+    """A motion-mode mixture scored against the data at one point: per observation the mean,
+    the mode it is scored in and sigma (sqrt of the covariance's diagonal); the covariance's
+    Cholesky factor; the rows that complete each condition's -2 log density."""
+    mean: np.ndarray
+    chol: np.ndarray
+    sigma: np.ndarray
+    mode: np.ndarray
+    rows: np.ndarray
+
+
 class Problem:
     """Whitened least-squares problem around a black-box ``predict``."""
 
@@ -407,12 +436,17 @@ class Problem:
         self._cache = {}
         self._index_seen, self._indexer = None, None
         self.conditions = conditions
-        mu0 = self.mu({p.name: p.value for p in self.base}, {})
+        self._modes_fn = None
+        mu0 = self.mu({p.name: p.value for p in self.base}, {})     # predict checked
         # a callable model_se(theta, effects) -> Series: the model's uncertainty depends on
         # where it is asked (an emulator's), and every fit's likelihood carries it there
         self._se_fn = model_se if callable(model_se) else None
         # ... and with .cov, how its errors at one point correlate between the observations
         self._cov_fn = getattr(self._se_fn, "cov", None)
+        # ... and with .modes, its response per motion mode (ModeComponents): the likelihood
+        # is their mixture, scored per condition in the mode the data make most probable
+        self._modes_fn = getattr(self._se_fn, "modes", None)
+        self._mix = {}
         self._chols = {}
         if self._se_fn is not None:
             model_se = self._se_fn({p.name: p.value for p in self.base}, {})
@@ -467,6 +501,8 @@ class Problem:
 
     def mu(self, theta, effects):
         """Model mean at base parameters ``theta`` and effect strengths ``effects`` (others null)."""
+        if self._modes_fn is not None:
+            return self._mixture(theta, effects).mean
         eff = self._full_effects(effects)
         key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
         if key not in self._cache:
@@ -489,6 +525,67 @@ class Problem:
                                  % (self.keys[int(np.argmin(np.isfinite(vals)))],))
             self._cache[key] = vals
         return self._cache[key]
+
+    def _mixture(self, theta, effects) -> "_ModeFit":
+        """The model's motion-mode mixture at a point (:meth:`_mixture_of`), remembered."""
+        eff = self._full_effects(effects)
+        key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
+        hit = self._mix.get(key)
+        if hit is None:
+            self.n_calls += 1
+            if len(self._mix) >= 4096:
+                self._mix.clear()
+            hit = self._mix[key] = self._mixture_of(self._modes_fn(dict(theta), eff))
+        return hit
+
+    def _mixture_of(self, mc) -> "_ModeFit":
+        """The likelihood of a mixture over motion modes, per condition: the twin's one
+        realisation there is in mode k with probability p_k, so the data's density is
+        sum_k p_k N(y; m_k, C_k + diag(sd^2)) - not one Gaussian of the mixture's moments,
+        which lets a fit sit between two modes the twin never occupies. Each condition is
+        scored in the mode of largest p_k N_k (the mixture's discrete latent at its most
+        probable value: the fit's mean and covariance are that mode's, its errors correlated
+        across the conditions in the same mode), and one row per condition adds what makes the
+        rows' sum of squares that condition's exact -2 log of the mixture density:
+        -2 log p_k* - 2 log sum_k exp(a_k - a_k*) + 2 log K >= 0 (a_k the log of p_k N_k; the
+        constant 2 log K, the same at every point, keeps the row real)."""
+        idx = pd.Index(mc.keys).get_indexer(self.keys)
+        if np.any(idx < 0):
+            raise ValueError("model_se.modes returned no value for %r"
+                             % (self.keys[int(np.argmin(idx))],))
+        mean, cov = mc.mean[:, idx], mc.cov[:, idx][:, :, idx]
+        cond = mc.condition[idx]
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise ValueError("model_se.modes returned a non-finite value")
+        K = len(mc.modes)
+        var = self.sd ** 2
+        pick = np.zeros(len(self.y), int)
+        rows = []
+        for g in np.unique(cond):
+            on = np.flatnonzero(cond == g)
+            a = np.full(K, -np.inf)
+            for k in range(K):
+                if mc.log_p[k, g] < LOG_P_NEGLIGIBLE:
+                    continue
+                S = cov[k][np.ix_(on, on)] + np.diag(var[on])
+                L = _cholesky(S)
+                w = solve_triangular(L, self.y[on] - mean[k, on], lower=True,
+                                     check_finite=False)
+                a[k] = -0.5 * (w @ w) - np.sum(np.log(np.diag(L))) + mc.log_p[k, g]
+            best = int(np.argmax(a))
+            pick[on] = best
+            rows.append(-2.0 * mc.log_p[best, g] - 2.0 * np.log(np.sum(np.exp(a - a[best])))
+                        + 2.0 * np.log(K))
+        n = len(self.y)
+        S = np.zeros((n, n))
+        for k in range(K):
+            m = pick == k
+            S[np.ix_(m, m)] = cov[k][np.ix_(m, m)]
+        S[np.diag_indices_from(S)] += var
+        L = _cholesky(S)
+        return _ModeFit(mean=mean[pick, np.arange(n)], chol=L, sigma=np.sqrt(np.diag(S)),
+                        mode=np.asarray(mc.modes, object)[pick],
+                        rows=np.sqrt(np.maximum(np.array(rows), 0.0)))
 
     def profiled_start(self, theta, name, strength):
         """Base parameters refitted with effect ``name`` held at ``strength``: a starting point
@@ -513,12 +610,28 @@ class Problem:
         common to every fit on these observations; 0 when sigma is constant."""
         if not self.varying_sigma:
             return 0.0
-        return float(np.sum(2.0 * np.log(self._scale_diag(effects, theta) / self._sigma_ref)))
+        return float(np.sum(2.0 * np.log(self._scale_diag(effects, theta) / self._sigma_ref))
+                     + np.sum(self.mode_rows(effects, theta) ** 2))
+
+    def modes_at(self, effects, theta):
+        """Per key the motion mode the mixture scores it in at this point; None without."""
+        if self._modes_fn is None:
+            return None
+        return self._mixture(theta, effects or {}).mode
+
+    def mode_rows(self, effects, theta=None) -> np.ndarray:
+        """The rows a motion-mode mixture adds to the objective, one per condition
+        (:meth:`_mixture_of`); none without modes."""
+        if self._modes_fn is None or theta is None:
+            return np.zeros(0)
+        return self._mixture(theta, effects or {}).rows
 
     def chol(self, effects, theta=None):
         """The lower Cholesky factor of the covariance diag(sd^2 + effect_se^2) + K at these
         strengths and base parameters, K the model's own covariance (its ``.cov``); None when
         the model states none (the covariance is diag(sigma^2))."""
+        if self._modes_fn is not None and theta is not None:
+            return self._mixture(theta, effects or {}).chol
         if self._cov_fn is None or theta is None:
             return None
         eff = dict(self.fixed)
@@ -538,12 +651,7 @@ class Problem:
                 raise ValueError("model_se.cov returned a non-finite value")
             sig = self.sigma_for(effects, theta)
             S[np.diag_indices_from(S)] = sig ** 2
-            try:
-                L = np.linalg.cholesky(S)
-            except np.linalg.LinAlgError:        # rounding: drop what is not positive
-                w, U = np.linalg.eigh(S)
-                L = np.linalg.cholesky((U * np.maximum(w, 1e-12 * sig.min() ** 2)) @ U.T)
-            self._chols[key] = L
+            self._chols[key] = _cholesky(S)
         return self._chols[key]
 
     def white(self, v, effects, theta=None):
@@ -567,6 +675,8 @@ class Problem:
         """sigma with the model's extra uncertainty at these effect strengths (``effect_se``,
         e.g. a library's interpolation between its signature levels) added in quadrature; with
         a callable model_se, the model's uncertainty at ``theta`` and these strengths."""
+        if self._modes_fn is not None and theta is not None:
+            return self._mixture(theta, effects or {}).sigma
         if self._se_fn is not None and theta is not None:
             eff = dict(self.fixed)
             eff.update(effects or {})
@@ -634,8 +744,10 @@ class Problem:
             r = whitened(u)
             if not varying:
                 return r
-            pen = 2.0 * np.log(self._scale_diag(unpack(u)[1], unpack(u)[0]) / sigma_0)
-            return np.concatenate([r, np.sqrt(np.maximum(pen, 0.0))])
+            theta, eff = unpack(u)
+            pen = 2.0 * np.log(self._scale_diag(eff, theta) / sigma_0)
+            return np.concatenate([r, np.sqrt(np.maximum(pen, 0.0)),
+                                   self.mode_rows(eff, theta)])
 
         def fd_jac(f, u):
             steps = []
@@ -663,7 +775,9 @@ class Problem:
         mu = self.mu(theta, eff)
         sigma = self.sigma_for(eff, theta)
         penalty = self.penalty(eff, theta) if varying else 0.0
-        Ju = -fd_jac(whitened, u)          # d(whitened mu) / du
+        # d(whitened mu) / du, and how the motion modes' probabilities move (their rows)
+        Ju = -fd_jac(lambda v: np.concatenate([whitened(v), self.mode_rows(*unpack(v)[::-1])]),
+                     u)
         Jx = Ju / span                     # per physical unit
         cov = np.linalg.pinv(Jx.T @ Jx)
         x = lo + span * u
@@ -676,8 +790,10 @@ class Problem:
                          chi2=float(np.sum(whitened(u) ** 2)), dof=self.n - len(names),
                          prediction=pd.Series(mu, index=self.keys),
                          residuals=pd.Series(z, index=self.keys),
-                         jac=pd.DataFrame(Jx, index=self.keys, columns=names), at_bound=at_bound,
-                         sigma=sigma, penalty=penalty, chol=self.chol(eff, theta))
+                         jac=pd.DataFrame(Jx[:self.n], index=self.keys, columns=names),
+                         at_bound=at_bound,
+                         sigma=sigma, penalty=penalty, chol=self.chol(eff, theta),
+                         mode=self.modes_at(eff, theta))
 
     def stage(self, theta, eff=None) -> FitResult:
         """Model at fixed parameters (no fit): a FitResult with dof = n."""
@@ -691,7 +807,7 @@ class Problem:
                          residuals=pd.Series(z, index=self.keys), jac=pd.DataFrame(),
                          at_bound=[], sigma=sig,
                          penalty=self.penalty(eff or {}, theta) if self.varying_sigma else 0.0,
-                         chol=self.chol(eff or {}, theta))
+                         chol=self.chol(eff or {}, theta), mode=self.modes_at(eff or {}, theta))
 
 
 def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
@@ -1183,9 +1299,10 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
 
         def se_fn(theta, effects=None):
             return model_se(dict(theta, **{name: float(x)}), effects)
-        if getattr(model_se, "cov", None) is not None:
-            se_fn.cov = lambda theta, effects=None: model_se.cov(
-                dict(theta, **{name: float(x)}), effects)
+        for hook in ("cov", "modes"):
+            if getattr(model_se, hook, None) is not None:
+                setattr(se_fn, hook, lambda theta, effects=None, f=getattr(model_se, hook):
+                        f(dict(theta, **{name: float(x)}), effects))
         ms = se_fn if callable(model_se) else model_se
         starts = [BaseParameter(q.name, float(np.clip(start[q.name], q.lower, q.upper)),
                                 q.lower, q.upper) for q in others]

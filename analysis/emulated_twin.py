@@ -32,7 +32,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import pandas as pd
 
-from analysis.emulator import GPEmulator, ModeClassifier, Prediction, mix_modes
+from analysis.emulator import (GPEmulator, ModeClassifier, ModeComponents, Prediction,
+                               mix_modes)
 from analysis.history_matching import (DesignSpace, design_runs, effect_input,
                                        initial_design, next_wave)
 
@@ -283,30 +284,53 @@ class EmulatedTwin:
             X[okk, j] = np.tile(a, len(P))[okk]
         return X
 
-    def dem_parts(self, points, sd=True) -> dict:
-        """{observable: Prediction of shape (n_points, n_conditions)} (``sd=False``: the means
-        only, the sds zero)."""
+    def mode_parts(self, points):
+        """Each emulated mode's predictions and the modes' probabilities: ({mode: {observable:
+        Prediction of shape (n_points, n_conditions) with ``latent_corr`` (n_points,
+        n_conditions, n_conditions)}}, p of shape (n_points, n_conditions, n_modes)), the
+        modes in the order of the classifier's ``modes_``."""
         X = self._inputs(points)
-        n_p, n_c = len(X) // len(self._X_cond), len(self._X_cond)
-        out = {}
-        P = self.mode_classifier_.predict_proba(X)
+        n_c = len(self._X_cond)
+        n_p = len(X) // n_c
+        per = {k: {} for k in self.mode_classifier_.modes_}
         for o, ems in self.emulators_.items():
+            for k, em in ems.items():
+                p = em.predict_parts(X, block=n_c)
+                per[k][o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
+                                         for a in (p.mean, p.latent_sd, p.chaos_sd)),
+                                       latent_corr=p.latent_corr[:, 0])
+        return per, self.mode_classifier_.predict_proba(X).reshape(n_p, n_c, -1)
+
+    @staticmethod
+    def _mixed(per, P, sd=True) -> dict:
+        """{observable: Prediction of shape (n_points, n_conditions)} of the modes' mixture
+        (:func:`analysis.emulator.mix_modes`) from :meth:`mode_parts` (``sd=False``: the
+        means only, the sds zero)."""
+        modes = list(per)
+        n_p, n_c, _ = P.shape
+        out = {}
+        for o in per[modes[0]]:
+            parts = [per[k][o] for k in modes]
             if not sd:
-                m = np.sum(P * np.column_stack([em.predict(X)[:, 0] for em in ems.values()]),
-                           axis=1).reshape(n_p, n_c)
+                m = np.sum(P * np.stack([q.mean for q in parts], axis=2), axis=2)
                 out[o] = Prediction(m, np.zeros_like(m), np.zeros_like(m))
-                continue
-            if len(ems) == 1:
-                p = next(iter(ems.values())).predict_parts(X, block=n_c)
+            elif len(parts) == 1:
+                out[o] = parts[0]
             else:
-                p = mix_modes([em.predict_parts(X, block=n_c) for em in ems.values()], P,
-                              block=n_c)
-            out[o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
-                                  for a in (p.mean, p.latent_sd, p.chaos_sd)),
-                                latent_corr=p.latent_corr[:, 0],
-                                mode_dev=None if p.mode_dev is None
-                                else p.mode_dev[:, 0].reshape(n_p, n_c, -1))
+                flat = [Prediction(*(a.reshape(-1, 1) for a in (q.mean, q.latent_sd,
+                                                                   q.chaos_sd)),
+                                   latent_corr=q.latent_corr[:, None]) for q in parts]
+                p = mix_modes(flat, P.reshape(n_p * n_c, -1), block=n_c)
+                out[o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
+                                      for a in (p.mean, p.latent_sd, p.chaos_sd)),
+                                    latent_corr=p.latent_corr[:, 0],
+                                    mode_dev=p.mode_dev[:, 0].reshape(n_p, n_c, -1))
         return out
+
+    def dem_parts(self, points, sd=True) -> dict:
+        """{observable: Prediction of shape (n_points, n_conditions)} of the modes' mixture
+        (``sd=False``: the means only, the sds zero)."""
+        return self._mixed(*self.mode_parts(points), sd=sd)
 
     def point_vector(self, theta, effects=None) -> np.ndarray:
         """One design point as an array in the order of ``space.names`` (base parameters from
@@ -320,17 +344,25 @@ class EmulatedTwin:
         """One design point (a one-row DataFrame of the space's names)."""
         return pd.DataFrame([self.point_vector(theta, effects)], columns=self.space.names)
 
-    def _parts_at(self, theta, effects):
-        """dem_parts (with sds) at one point, remembered: a fit asks for the mean and the sd
-        at the same point, one after the other."""
+    def _modes_at(self, theta, effects):
+        """:meth:`mode_parts` at one point, remembered (a fit asks for the mean and the sd
+        at the same point, one after the other): (per-mode parts, p of shape (1, n_c, K),
+        the mixture's parts or None until asked)."""
         v = self.point_vector(theta, effects)
         key = v.tobytes()
         hit = self._memo.get(key)
         if hit is None:
             if len(self._memo) >= 512:
                 self._memo.clear()
-            hit = self._memo[key] = self.dem_parts(v[None, :])
+            hit = self._memo[key] = [*self.mode_parts(v[None, :]), None]
         return hit
+
+    def _parts_at(self, theta, effects):
+        """The modes' mixture (:meth:`dem_parts`, with sds) at one point, remembered."""
+        hit = self._modes_at(theta, effects)
+        if hit[2] is None:
+            hit[2] = self._mixed(hit[0], hit[1])
+        return hit[2]
 
     def prefetch(self, pairs):
         """Emulate many points at once and remember them: ``pairs`` of (theta, effects) that
@@ -347,12 +379,29 @@ class EmulatedTwin:
             return
         if len(self._memo) + len(vs) > 512:
             self._memo.clear()
-        parts = self.dem_parts(np.vstack(vs))
+        per, P = self.mode_parts(np.vstack(vs))
         for i, k in enumerate(keys):
-            self._memo[k] = {o: Prediction(p.mean[i:i + 1], p.latent_sd[i:i + 1],
-                                           p.chaos_sd[i:i + 1], p.latent_corr[i:i + 1],
-                                           None if p.mode_dev is None else p.mode_dev[i:i + 1])
-                             for o, p in parts.items()}
+            one = {m: {o: Prediction(q.mean[i:i + 1], q.latent_sd[i:i + 1],
+                                     q.chaos_sd[i:i + 1], q.latent_corr[i:i + 1])
+                       for o, q in d.items()} for m, d in per.items()}
+            self._memo[k] = [one, P[i:i + 1], None]
+
+    def mode_components(self, theta, effects=None) -> ModeComponents:
+        """The twin's response at one point per emulated motion mode - each mode's mean and
+        its emulator's covariance by self.keys (as :meth:`predict` and :meth:`model_cov` give
+        the mixture's), and each condition's log p(mode): the likelihood's mixture, which a
+        fit scores per condition in the mode the data make most probable
+        (:class:`analysis.diagnose.Problem`)."""
+        self._check_effects(effects)
+        per, P, _ = self._modes_at(theta, effects)
+        means = [self._assemble(per[k], theta, effects, "mean").to_numpy(float) for k in per]
+        covs = [self._latent_cov(per[k], theta, effects) for k in per]
+        cids = list(self.conditions["condition_id"])
+        return ModeComponents(modes=tuple(per), keys=self.keys, mean=np.stack(means),
+                              cov=np.stack(covs),
+                              log_p=np.log(np.clip(P[0].T, 1e-300, 1.0)),
+                              condition=np.array([cids.index(c) for c in
+                                                  self.keys.get_level_values(0)], int))
 
     def _assemble(self, parts, theta, effects, which):
         """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;

@@ -102,6 +102,26 @@ class Prediction:
         return np.sqrt(self.latent_sd ** 2 + chaos)
 
 
+@dataclass(frozen=True)
+class ModeComponents:
+    """A model's response at one point per motion mode - the mixture a likelihood scores
+    (:class:`analysis.diagnose.Problem`): one run, and the data's one realisation, is in one
+    mode at each condition, with its probability there.
+
+    modes : the K modes' names; keys : the n observations (condition_id, observable)
+    mean : (K, n) each mode's mean; cov : (K, n, n) each mode's emulator covariance (its errors
+        correlated across the conditions; the modes' emulators independent of one another)
+    log_p : (K, n_conditions) log p(mode) per condition; condition : (n,) each key's condition
+        (a column of ``log_p``)
+    """
+    modes: tuple
+    keys: pd.Index
+    mean: np.ndarray
+    cov: np.ndarray
+    log_p: np.ndarray
+    condition: np.ndarray
+
+
 class _UnitCube:
     """Inputs named by ``bounds`` (name -> (lower, upper)), scaled to the centred unit cube."""
 

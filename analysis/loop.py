@@ -41,7 +41,9 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
                              twin rerun, refitted on the twin reruns)
    ``steps.csv``             every diagnosis step's full ranking (column ``step``)
    ``parameters.csv``        name, role (base / effect), value, se, profile_lo, profile_hi
-   ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z
+   ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z;
+                             motion_mode_final: the twin's motion mode the final fit scores
+                             it in (a model with two modes or more)
    ``model_runs.csv``        every twin run the model was fitted to (wave, point, condition_id,
                              seed, run_id, the design inputs, the observables)
    ``rerun_runs.csv``        the confirmation runs at the final point (also in model_runs.csv)
@@ -221,6 +223,11 @@ class WithAdded:
                 def cov_at(theta, effects=None):
                     return self.model.model_cov(*self._split(theta, effects)), self.model.keys
                 se_at.cov = cov_at
+            if hasattr(self.model, "mode_components"):
+                # ... and its response per motion mode: the likelihood is their mixture
+                def modes_at(theta, effects=None):
+                    return self.model.mode_components(*self._split(theta, effects))
+                se_at.modes = modes_at
             return se_at
         se = self.model.model_se(self.theta)
         if not self.added:
@@ -944,6 +951,9 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     comp["z_calibrated"] = cal.residuals.reindex(key).to_numpy(float)
     comp["final"] = final.prediction.reindex(key).to_numpy(float)
     comp["z_final"] = final.residuals.reindex(key).to_numpy(float)
+    if final.mode is not None:
+        comp["motion_mode_final"] = pd.Series(final.mode, index=final.prediction.index
+                                              ).reindex(key).to_numpy(object)
     rr = state.reruns[-1].score if state.reruns else None
     if rr is not None:
         comp["twin_rerun"] = rr.prediction.to_numpy(float)
