@@ -210,6 +210,9 @@ class EmulatedTwin:
         b = self.bounds()
         modes = self.mode_labels(runs)
         keep = np.array([k is not None for k in modes], bool)
+        if not keep.any():
+            raise ValueError("no run has every emulated observable finite (%s)"
+                             % ", ".join(self.observables))
         X, modes, kept = self.inputs_of(runs)[keep], modes[keep], runs[keep]
         self.mode_classifier_ = ModeClassifier(b, random_state=self.seed).fit(X, modes)
         self.emulators_ = {}

@@ -3,14 +3,11 @@ from __future__ import annotations
 
 from analysis.report.markdown import frame_table_lines
 
-_COLS = ["output", "n", "rmse", "rel_rmse_pct", "coverage95", "mean_z2"]
 
-
-def emulator_check_page(leave_out, heldout, *, n_runs, n_points, replicates, dataset,
-                        heldout_dir, fake=False, n_planned=None, by_role=None,
-                        by_effect=None):
+def emulator_check_page(leave_out, modes, heldout, *, n_runs, n_points, replicates, folds,
+                        dataset, heldout_dir, fake=False, n_planned=None):
     """README.md of the study folder."""
-    lines = ["# The one emulator of the twin against real twin runs", ""]
+    lines = ["# The loop's model of the twin against real twin runs", ""]
     if fake:
         lines += ["**FAKE: made by the analytic stand-in (`--fake`), not the twin.**", ""]
     lines += [
@@ -18,33 +15,32 @@ def emulator_check_page(leave_out, heldout, *, n_runs, n_points, replicates, dat
         "the design (a Latin hypercube over restitution, stroke and both frictions; half of its "
         "%d points with one DEM candidate effect on at a strength drawn from its range) at the "
         "conditions of `%s`, one seed per point and condition, plus the reference point with "
-        "%d seeds: %d twin runs%s. One GP per observable (inputs: the base parameters, the "
-        "effects' strengths, frequency and ball; the chaos pooled per condition from the "
-        "replicates)." % (n_points, dataset, replicates, n_runs,
-                          "" if not n_planned or n_planned == n_runs else
-                          " (of the %d planned: the study was analysed as far as it got, "
-                          "`--cached-only`)" % n_planned), "",
+        "%d seeds: %d twin runs%s. The model is the loop's (`analysis.emulated_twin."
+        "EmulatedTwin`): one GP per observable and motion mode, a Gaussian-process classifier "
+        "of the mode; a new run's value is their mixture." % (
+            n_points, dataset, replicates, n_runs,
+            "" if not n_planned or n_planned == n_runs else
+            " (of the %d planned: the study was analysed as far as it got, `--cached-only`)"
+            % n_planned), "",
         "## Leave-out of whole design points", "",
-        "Every run of a point (all its conditions) left out together; the 95 % interval is "
-        "that of a new twin run (emulator + chaos). `mean_z2` is 1 when the stated "
-        "uncertainty is right.", ""]
-    lines += frame_table_lines(leave_out, [c for c in _COLS if c in leave_out.columns])
+        "%d folds of design points (every run of a point in one fold), the model refitted "
+        "without each. The 95 %% interval is the mixture's of a new twin run (each mode's "
+        "emulator + chaos, weighted by the classifier): covered when its CDF at the run (the "
+        "PIT) lies in [0.025, 0.975]; z = Phi^-1(PIT), `mean_z2` 1 when the stated uncertainty "
+        "is right. `one GP`: the same runs fitted without their modes (one GP across them)."
+        % folds, ""]
+    lines += frame_table_lines(leave_out, [c for c in ("model", "observable", "n", "rmse",
+                                                       "coverage95", "mean_z2")
+                                           if c in leave_out.columns])
+    lines += ["", "The classifier on the runs left out (`modes.csv`): per motion mode, its mean "
+              "p of the run's own mode and the share of runs it gives p > 0.5.", ""]
+    lines += frame_table_lines(modes, list(modes.columns))
     if heldout is not None:
-        hcols = ["observable", "n", "rmse", "coverage95", "mean_z2"]
-        lines += ["", "## Twin runs the emulator never saw", "",
-                  "The loop's committed runs at the same conditions (`%s/model_runs.csv`: its "
-                  "anchor, one-at-a-time base responses and effect levels), predicted one by "
-                  "one." % heldout_dir, ""]
-        lines += frame_table_lines(heldout, hcols)
-        if by_role is not None:
-            lines += ["", "By the loop's role of the run (`anchor`: the loop's start point; "
-                      "`base`: one base parameter a step away; `effect`: one effect on at the "
-                      "anchor; `heldout_by_role.csv`):", ""]
-            lines += frame_table_lines(by_role, ["observable", "role"] + hcols[1:])
-        if by_effect is not None:
-            lines += ["", "The effect runs by effect (every observable):", ""]
-            lines += frame_table_lines(by_effect, ["name"] + hcols[1:])
-        lines += ["", "![held-out runs](emulator_check.png)"]
+        lines += ["", "## Twin runs the study never made", "",
+                  "The runs of `%s/model_runs.csv` that the study's design does not hold (its "
+                  "waves, focus points and reruns), predicted one by one by the model fitted "
+                  "to every study run." % heldout_dir, ""]
+        lines += frame_table_lines(heldout, ["observable", "n", "rmse", "coverage95",
+                                             "mean_z2"])
+    lines += ["", "![left-out runs](emulator_check.png)"]
     return "\n".join(lines) + "\n"
-
-

@@ -1,54 +1,48 @@
-"""Does the one emulator of the twin predict real twin runs, with an uncertainty that covers them?
+"""Does the loop's one model of the twin predict real twin runs, with an uncertainty that covers them?
 
 Wave 0 of the design (:func:`analysis.history_matching.initial_design`: a Latin hypercube over
 the base parameters' priors, half of its points with one candidate effect switched on at a
 strength drawn from its range) is run at a dataset's conditions, one seed per point and
 condition (the same seed across conditions), plus the reference point with ``--replicates``
-seeds (the twin's chaos per condition). One GP emulator per observable
-(:class:`analysis.emulator.GPEmulator`: inputs the base parameters, the effects' strengths and
-the conditions' frequency and ball; the chaos pooled per condition from the replicates) is fitted
-to every run and checked
+seeds (the twin's chaos per condition). The model is the loop's own
+(:class:`analysis.emulated_twin.EmulatedTwin`: one GP per observable and motion mode, a
+classifier of the mode; a new run's value is their mixture), checked
 
-* by leave-out of whole design points (all conditions of a point left out together): the RMSE,
-  the coverage of the 95 % interval of a new run and its mean z^2 (1 when the stated
-  uncertainty is right);
-* on twin runs it never saw: the runs the loop committed for the same dataset
-  (``model_runs.csv`` of ``--heldout``: its anchor, its one-at-a-time base responses and
-  effect levels), predicted one by one.
+* by K-fold leave-out of whole design points (all conditions of a point left out together,
+  ``--folds`` folds, the model refitted without them): per observable the RMSE of the
+  mixture's mean, the coverage of the mixture's 95 % interval of a new run (its CDF at the
+  run, the PIT, within [0.025, 0.975]) and the mean z^2 of z = Phi^-1(PIT) (1 when the stated
+  uncertainty is right); per motion mode the classifier's mean p of the run's own mode; and
+  the same for one GP across the modes (the model fitted without the runs' modes);
+* on twin runs it never saw: another loop's ``model_runs.csv`` at the same conditions
+  (``--heldout``: its waves, focus points and reruns), predicted one by one by the model fitted
+  to every study run.
 
 Writes ``--out`` (default ``results/studies/emulator_check/``): ``design_runs.csv`` (every run:
-point, condition, seed, run id, inputs, observables), ``leave_out.csv`` and ``heldout.csv``
-(per observable: n, rmse, coverage95, mean_z2), ``heldout_runs.csv`` (per held-out run: twin,
-prediction, sd, z), ``emulator_check.png``, ``README.md``. Twin runs are cached by run id
-(``results/runs/``): a killed study resumes.
+point, condition, seed, run id, inputs, observables, motion mode), ``leave_out.csv`` and
+``heldout.csv`` (per model and observable: n, rmse, coverage95, mean_z2), ``modes.csv`` (per
+mode: runs, mean p of the own mode, share classified right), ``heldout_runs.csv`` (per
+held-out run and observable: twin, mixture mean, z), ``emulator_check.png``, ``README.md``.
+Twin runs are cached by run id (``results/runs/``): a killed study resumes.
 
 Example::
 
-    python -m analysis.studies.emulator_check --points 40 --workers 2
+    python -m analysis.studies.emulator_check --points 24 --workers 2
 """
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
 
 from analysis.config import RESULTS_DIR
-from analysis.emulated_twin import REFERENCE_SEED0
-from analysis.emulator import GPEmulator
-from analysis.history_matching import (DesignSpace, design_runs, effect_input,
-                                       initial_design)
+from analysis.emulated_twin import REFERENCE_SEED0, EmulatedTwin
+from analysis.history_matching import DesignSpace, design_runs, initial_design
 
-#: observables checked: the speed in both frames, the collision rate, the impact observables
-OBSERVABLES = ("v_mean_m_s", "v_mean_jar_m_s", "f_col_hz", "e_app", "v_in_m_s",
-               "impact_phase_rad", "jar_amplitude_m", "vy_rms_m_s")
-#: observables emulated in log space (relative changes that multiply)
-LOG_OBSERVABLES = ("vy_rms_m_s",)
-#: the conditions' inputs of the emulator
-CONDITION_INPUTS = ("frequency_hz", "ball_diameter_m")
 DEFAULT_DATASET = RESULTS_DIR / "open_world" / "effects" / "eff_p01"
 DEFAULT_OUT = RESULTS_DIR / "studies" / "emulator_check"
 
@@ -98,95 +92,83 @@ def run_plan(runs, workers, fake=False, cached_only=False):
     return twin(runs)
 
 
-def training_inputs(runs, space):
-    """Emulator inputs of runs: the base parameters as run (from each config, so a stated
-    stroke is the one run), the effects' strengths, the conditions' physics."""
-    X = pd.DataFrame({n: runs[n].to_numpy(float) for n in space.effect_names})
-    for n in space.base_names + list(CONDITION_INPUTS):
-        X[n] = [float(c[n]) for c in runs["config"]]
-    return X
+def make_model(conditions, space, frame, seed=0, flights=True):
+    """The loop's model at the study's conditions, with ``flights`` the impact observables
+    emulated at every one."""
+    return EmulatedTwin(conditions, space, velocity_frame=frame, seed=seed,
+                        flight_conditions=list(conditions["condition_id"]) if flights else ())
 
 
-def emulator_bounds(space, X):
-    b = space.bounds()
-    for c in CONDITION_INPUTS:
-        lo, hi = float(X[c].min()), float(X[c].max())
-        pad = 0.05 * (hi - lo) if hi > lo else 0.05 * abs(lo)
-        b[c] = (lo - pad, hi + pad)
-    return b
+def new_run_scores(model, runs) -> pd.DataFrame:
+    """Per run (in a motion mode the model emulates) and observable: the twin's value, the
+    mode, p of that mode, the mixture's mean, its CDF at the value (PIT) and z =
+    Phi^-1(PIT) - the mixture of each mode's new-run normal (emulator + chaos), weighted by
+    the classifier."""
+    from scipy import stats
+    modes = list(model.mode_classifier_.modes_)
+    raw = (runs["motion_mode"].astype(str).to_numpy() if "motion_mode" in runs
+           else np.full(len(runs), "any"))
+    keep = np.isin(raw, modes) if len(modes) > 1 else np.ones(len(runs), bool)
+    runs, raw = runs[keep].reset_index(drop=True), raw[keep]
+    X = model.inputs_of(runs)
+    P = model.mode_classifier_.predict_proba(X)
+    own = (P[np.arange(len(runs)), [modes.index(k) for k in raw]] if len(modes) > 1
+           else np.where(raw == modes[0], 1.0, np.nan))
+    out = []
+    for o, ems in model.emulators_.items():
+        y = runs[o].to_numpy(float) if o in runs else np.full(len(runs), np.nan)
+        parts = [ems[k].predict_parts(X) for k in modes]
+        M = np.column_stack([q.mean[:, 0] for q in parts])
+        S = np.column_stack([q.sd(1)[:, 0] for q in parts])
+        pit = np.sum(P * stats.norm.cdf((y[:, None] - M) / S), axis=1)
+        ok = np.isfinite(y)
+        out.append(pd.DataFrame({
+            "observable": o, "run": np.flatnonzero(ok), "point": runs["point"].to_numpy()[ok],
+            "condition_id": runs["condition_id"].to_numpy()[ok], "mode": raw[ok],
+            "p_mode": own[ok], "twin": y[ok], "predicted": np.sum(P * M, axis=1)[ok],
+            "pit": pit[ok],
+            "z": stats.norm.ppf(np.clip(pit[ok], 1e-12, 1 - 1e-12))}))
+    return pd.concat(out, ignore_index=True)
 
 
-def fit_emulators(X, runs, bounds, observables=OBSERVABLES, seed=0):
-    """{observable: fitted GPEmulator} on the runs where it is finite."""
-    out = {}
-    for o in observables:
-        ok = np.isfinite(runs[o].to_numpy(float)) if o in runs else np.zeros(len(runs), bool)
-        if ok.sum() < len(bounds) + 2:
-            continue
-        em = GPEmulator(bounds, outputs=(o,), nu=2.5, trend=True,
-                        log_outputs=tuple(x for x in LOG_OBSERVABLES if x == o),
-                        noise_keys=CONDITION_INPUTS, n_restarts_optimizer=1, random_state=seed)
-        out[o] = (em.fit(X[ok], runs.loc[ok, [o]]), np.flatnonzero(ok))
-    return out
+def fold_scores(make, runs, n_folds, seed=0) -> pd.DataFrame:
+    """:func:`new_run_scores` of every run by a model (``make()``, unfitted) fitted without
+    its fold: the design points dealt into ``n_folds`` folds at random (``seed``), every run
+    of a point in one fold."""
+    pts = np.unique(runs["point"].to_numpy())
+    fold = dict(zip(np.random.default_rng(seed).permutation(pts), np.arange(len(pts)) % n_folds))
+    k = runs["point"].map(fold).to_numpy()
+    out = []
+    for f in tqdm(range(n_folds), desc="leave-out folds", unit="fold", file=sys.stdout):
+        test = runs[k == f].reset_index(drop=True)
+        m = make().fit(runs[k != f].reset_index(drop=True))
+        out.append(new_run_scores(m, test).assign(fold=f))
+    return pd.concat(out, ignore_index=True)
 
 
-def heldout_runs(folder, space):
-    """The loop's committed runs of a dataset (``model_runs.csv`` + ``loop.json``) as rows with
-    the emulator's inputs: the anchor, each base parameter's response levels, each effect's."""
-    folder = Path(folder)
-    info = json.loads((folder / "loop.json").read_text())
-    runs = pd.read_csv(folder / "model_runs.csv")
-    cond = {c["condition_id"]: c for c in info["conditions"]}
-    anchor = info["anchor"]
-    X = []
-    for r in runs.itertuples():
-        row = {n: float(anchor[n]) for n in space.base_names}
-        row.update({n: 0.0 for n in space.effect_names})
-        if r.role == "base":
-            row[r.name] = float(r.value)
-        elif r.role == "effect":
-            if effect_input(r.name) not in space.effect_names:
-                X.append(None)
-                continue
-            row[effect_input(r.name)] = float(r.value)
-        c = cond[r.condition_id]
-        row["frequency_hz"] = float(c["frequency_hz"])
-        row["ball_diameter_m"] = float(c["ball_diameter_mm"]) * 1e-3
-        X.append(row)
-    keep = [x is not None for x in X]
-    return pd.DataFrame([x for x in X if x is not None]), runs[keep].reset_index(drop=True)
-
-
-def check(ems, X_ho, runs_ho, bounds):
-    """Per held-out run and observable: twin, prediction, sd of a new run, z."""
-    inside = np.all([(X_ho[k] >= lo) & (X_ho[k] <= hi) for k, (lo, hi) in bounds.items()],
-                    axis=0)
-    rows = []
-    for o, (em, _) in ems.items():
-        if o not in runs_ho:
-            continue
-        y = runs_ho[o].to_numpy(float)
-        ok = np.isfinite(y) & inside
-        if not ok.any():
-            continue
-        p = em.predict_parts(X_ho[ok])
-        m, s = p.mean[:, 0], p.sd(1)[:, 0]
-        for i, yi, mi, si in zip(np.flatnonzero(ok), y[ok], m, s):
-            rows.append({"observable": o, "row": int(i), "role": runs_ho.loc[i, "role"],
-                         "name": runs_ho.loc[i, "name"], "condition_id":
-                         runs_ho.loc[i, "condition_id"], "twin": yi, "predicted": mi, "sd": si,
-                         "z": (yi - mi) / si})
-    return pd.DataFrame(rows)
-
-
-def summarise(per_run, by=("observable",)):
-    """n, rmse, coverage95 and mean z^2 per group of held-out runs."""
+def summarise(per_run, by=("observable",)) -> pd.DataFrame:
+    """n, rmse, coverage95 and mean z^2 per group of scored runs."""
     g = per_run.groupby(list(by))
-    return pd.DataFrame({"n": g.size(),
-                         "rmse": g.apply(lambda d: float(np.sqrt(np.mean((d.twin - d.predicted)
-                                                                         ** 2)))),
-                         "coverage95": g.apply(lambda d: float(np.mean(np.abs(d.z) <= 1.96))),
-                         "mean_z2": g.apply(lambda d: float(np.mean(d.z ** 2)))})
+    return pd.DataFrame({
+        "n": g.size(),
+        "rmse": g.apply(lambda d: float(np.sqrt(np.mean((d.twin - d.predicted) ** 2)))),
+        "coverage95": g.apply(lambda d: float(np.mean(np.abs(d.z) <= 1.96))),
+        "mean_z2": g.apply(lambda d: float(np.mean(d.z ** 2)))}).reset_index()
+
+
+def mode_table(per_run) -> pd.DataFrame:
+    """Per motion mode: runs, the classifier's mean p of the own mode, the share with p > 0.5."""
+    d = per_run.drop_duplicates("run" if "fold" not in per_run else ["fold", "run"])
+    g = d.groupby("mode")["p_mode"]
+    return pd.DataFrame({"runs": g.size(), "mean_p_own": g.mean(),
+                         "share_p_own_above_half": g.apply(lambda p: float(np.mean(p > 0.5)))
+                         }).reset_index()
+
+
+def heldout_runs(folder, design_ids):
+    """Another loop's runs (``model_runs.csv``) that the study's design does not hold."""
+    runs = pd.read_csv(Path(folder) / "model_runs.csv")
+    return runs[~runs["run_id"].isin(set(design_ids))].reset_index(drop=True)
 
 
 def add_design_options(p):
@@ -223,7 +205,10 @@ def main(argv=None):
     p.add_argument("--dataset", default=str(DEFAULT_DATASET), help="dataset whose conditions "
                    "the design runs at (default %(default)s)")
     p.add_argument("--heldout", default=None, help="a loop folder with model_runs.csv at "
-                   "the same conditions, whose runs the emulator never saw (default: none)")
+                   "the same conditions: its runs the study's design does not hold are "
+                   "predicted one by one (default: none)")
+    p.add_argument("--folds", type=int, default=8, help="leave-out folds of whole design "
+                   "points [-] (default %(default)s)")
     add_design_options(p)
     p.add_argument("--cached-only", action="store_true", help="start no twin run: analyse "
                    "the study's runs already in the cache")
@@ -232,8 +217,11 @@ def main(argv=None):
     from analysis.atomic_dir import OutputError, check_out_dir, output_dir
     from analysis.measurements import DatasetError, load_dataset
     try:
-        if a.points < 2 or a.replicates < 2 or a.workers < 1:
-            raise ValueError("--points and --replicates must be >= 2, --workers >= 1")
+        if a.points < 2 or a.replicates < 2 or a.workers < 1 or not 2 <= a.folds <= a.points:
+            raise ValueError("--points and --replicates must be >= 2, --workers >= 1, "
+                             "--folds between 2 and --points")
+        if a.heldout and not (Path(a.heldout) / "model_runs.csv").is_file():
+            raise ValueError("--heldout %s holds no model_runs.csv" % a.heldout)
         ds = load_dataset(a.dataset)
         check_out_dir(a.out, protected=(a.dataset,))
     except (OutputError, DatasetError, ValueError, OSError) as exc:
@@ -249,42 +237,52 @@ def main(argv=None):
     if len(runs) < n_planned:
         print("emulator check: %d of the %d planned runs are in the cache (--cached-only)"
               % (len(runs), n_planned))
-    X = training_inputs(runs, space)
-    bounds = emulator_bounds(space, X)
-    ems = fit_emulators(X, runs, bounds, seed=a.seed)
-    lo_rows = []
-    for o, (em, idx) in ems.items():
-        rep = em.loo_report(groups=runs["point"].to_numpy()[idx]).reset_index()
-        lo_rows.append(rep)
-    leave_out = pd.concat(lo_rows, ignore_index=True)
-    heldout, per_run, by_role, by_effect = None, None, None, None
-    if a.heldout and (Path(a.heldout) / "model_runs.csv").is_file():
-        X_ho, runs_ho = heldout_runs(a.heldout, space)
-        per_run = check(ems, X_ho, runs_ho, bounds)
-        heldout = summarise(per_run).reset_index() if len(per_run) else None
-        if heldout is not None:
-            eff = per_run[per_run["role"] == "effect"]
-            by_role = summarise(per_run, ("observable", "role")).reset_index()
-            by_effect = summarise(eff, ("name",)).reset_index() if len(eff) else None
+    from analysis.flights import FLIGHT_OBSERVABLES
+    flights = bool(runs.reindex(columns=list(FLIGHT_OBSERVABLES)).notna().all(axis=1).any())
+    make = lambda: make_model(ds.conditions, space, ds.velocity_frame, a.seed,  # noqa: E731
+                              flights)
+    pooled = lambda: _Pooled(make())                                         # noqa: E731
+    per = pd.concat([fold_scores(mk, runs, a.folds, a.seed).assign(model=name)
+                     for name, mk in (("mixture", make), ("one GP", pooled))],
+                    ignore_index=True)
+    leave_out = summarise(per, ("model", "observable"))
+    modes = mode_table(per[per.model == "mixture"])
+    heldout = per_ho = None
+    if a.heldout:
+        ho = heldout_runs(a.heldout, runs["run_id"])
+        if len(ho):
+            per_ho = new_run_scores(make().fit(runs), ho)
+            heldout = summarise(per_ho)
     from analysis.plotting.emulator_plots import emulator_check_figure
     from analysis.report.emulator_pages import emulator_check_page
     with output_dir(a.out, protected=(a.dataset,)) as tmp:
         runs.drop(columns=["config"]).to_csv(tmp / "design_runs.csv", index=False)
         leave_out.to_csv(tmp / "leave_out.csv", index=False, float_format="%.5g")
+        modes.to_csv(tmp / "modes.csv", index=False, float_format="%.4g")
         if heldout is not None:
             heldout.to_csv(tmp / "heldout.csv", index=False, float_format="%.5g")
-            per_run.to_csv(tmp / "heldout_runs.csv", index=False, float_format="%.6g")
-            by_role.to_csv(tmp / "heldout_by_role.csv", index=False, float_format="%.5g")
-        emulator_check_figure(per_run, tmp / "emulator_check.png", fake=a.fake)
+            per_ho.to_csv(tmp / "heldout_runs.csv", index=False, float_format="%.6g")
+        emulator_check_figure(per, tmp / "emulator_check.png", fake=a.fake)
         (tmp / "README.md").write_text(emulator_check_page(
-            leave_out, heldout, n_runs=len(runs), n_planned=n_planned, n_points=a.points,
-            replicates=a.replicates, dataset=rel_path(a.dataset), heldout_dir=rel_path(a.heldout) if a.heldout else None,
-            fake=a.fake, by_role=by_role if heldout is not None else None,
-            by_effect=by_effect if heldout is not None else None))
+            leave_out, modes, heldout, n_runs=len(runs), n_planned=n_planned,
+            n_points=a.points, replicates=a.replicates, folds=a.folds,
+            dataset=rel_path(a.dataset),
+            heldout_dir=rel_path(a.heldout) if a.heldout else None, fake=a.fake))
     print(leave_out.to_string(index=False))
+    print(modes.to_string(index=False))
     if heldout is not None:
         print(heldout.to_string(index=False))
     return 0
+
+
+class _Pooled:
+    """A model fitted without its runs' motion modes: one GP per observable across them."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def fit(self, runs):
+        return self.model.fit(runs.drop(columns=["motion_mode"], errors="ignore"))
 
 
 if __name__ == "__main__":
