@@ -362,7 +362,7 @@ def recording_flights(recording, fps=None, **kwargs) -> FlightResult:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="example: python -m analysis.flights "
-                                 "results/open_world/datasets/visco/tracks/c1.csv "
+                                 "results/open_world/effects/eff_p01/tracks/c1.csv "
                                  "--frequency-hz 26")
     ap.add_argument("source", help="a track CSV (t_s, x_m, y_m, jar_x_m) or a recording folder")
     ap.add_argument("--frequency-hz", type=float, help="jar frequency [Hz] (tracks; recordings "

@@ -1,10 +1,7 @@
-"""A blind case on the REAL twin at conditions the paper never ran (issue: the loop on the
-user's own measurements): results/open_world/datasets/visco - the twin once per condition at 6
-frequency / ball pairs outside Table 3 (21-31 Hz, 16-21 mm), base parameters off the anchor
-(restitution 0.32, static friction 0.55, rolling friction 0.35, stroke 13.1 mm), a viscoelastic
-wall hidden (k = 0.33), measurement noise, a ball+jar track per condition and yields. The loop's
-runs come from the committed run table (data/twin_runs), so no YADE run is needed: the test
-refuses to start one (budget 0). The truth is read only to score."""
+"""Blind cases at conditions the paper never ran (issue: the loop on the user's own
+measurements): the real twin on results/open_world/effects/eff_p01 from the committed run
+table (long: set MILL_TWIN_LONG_TESTS=1), and a kinetics effect on the FAKE twin. The truth is
+read only to score."""
 import json
 import os
 
@@ -17,7 +14,6 @@ from analysis.loop import run_loop
 from analysis.measurements import load_dataset
 from analysis.open_suite import truth_strengths
 
-DS = RESULTS_DIR / "open_world" / "datasets"
 EFF = RESULTS_DIR / "open_world" / "effects"
 
 

@@ -1,7 +1,7 @@
 """The whole loop on a dataset of conditions never run, from an empty cache and then cached.
 
-Default dataset: ``results/open_world/datasets/visco`` (6 frequency / ball pairs outside Table 3,
-21-31 Hz and 16-21 mm, a viscoelastic wall hidden). The loop (:func:`analysis.loop.run_loop`,
+Default dataset: ``results/open_world/effects/eff_p01`` (6 frequency / ball pairs outside Table 3,
+an arc motion of the jar hidden; the demo's blind dataset). The loop (:func:`analysis.loop.run_loop`,
 defaults of ``python -m analysis.loop``: wave 0, the refinement waves, forward selection, the
 twin reruns at the final point) runs in a fresh temporary runs folder with the scene in
 ``--frame`` (default 'auto': the jar frame where the effects allow it), so no run comes from
@@ -25,16 +25,16 @@ from pathlib import Path
 
 from analysis.config import RESULTS_DIR
 
-DEFAULT_DATASET = RESULTS_DIR / "open_world" / "datasets" / "visco"
+DEFAULT_DATASET = RESULTS_DIR / "open_world" / "effects" / "eff_p01"
 OUT = RESULTS_DIR / "bench" / "loop_cold.txt"
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 epilog="example: python -m analysis.bench.loop_cold --dataset "
-                                "results/open_world/datasets/visco --workers 2 --frame auto")
+                                "results/open_world/effects/eff_p01 --workers 2 --frame auto")
     p.add_argument("--dataset", default=str(DEFAULT_DATASET),
-                   help="dataset folder (default: results/open_world/datasets/visco)")
+                   help="dataset folder (default: %(default)s)")
     p.add_argument("--workers", type=int, default=2,
                    help="parallel twin runs [processes] (default %(default)s)")
     p.add_argument("--frame", choices=("lab", "jar", "auto"), default="auto",

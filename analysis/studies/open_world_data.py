@@ -5,7 +5,7 @@ measurement is) with base parameters drawn away from the calibration's mean, mea
 a ball+jar track per condition and yields; the truth (effects, base parameters) is kept apart in
 ``<out>/truth/<name>.truth.json``.
 
-    python -m analysis.studies.open_world_data --out results/open_world/datasets [--only NAME]
+    python -m analysis.studies.open_world_data --out results/open_world/nulls --nulls 20 [--only NAME]
 
 Example::
 
