@@ -302,7 +302,33 @@ class EmulatedTwin:
                 per[k][o] = Prediction(*(a[:, 0].reshape(n_p, n_c)
                                          for a in (p.mean, p.latent_sd, p.chaos_sd)),
                                        latent_corr=p.latent_corr[:, 0])
-        return per, self.mode_classifier_.predict_proba(X).reshape(n_p, n_c, -1)
+        P = self.mode_classifier_.predict_proba(X).reshape(n_p, n_c, -1)
+        for c, k in self._stated_index().items():
+            P[:, c, :] = 0.0
+            P[:, c, k] = 1.0
+        return per, P
+
+    def stated_modes(self) -> dict:
+        """{condition_id: mode} the dataset states (conditions' ``motion_mode``: seen in the
+        film), the mode None where the model does not emulate it (too few runs in it) - then
+        the classifier's p holds there."""
+        col = self.conditions.get("motion_mode")
+        if col is None:
+            return {}
+        modes = (list(self.mode_classifier_.modes_) if hasattr(self, "mode_classifier_")
+                 else [])
+        return {cid: (m if m in modes else None)
+                for cid, m in zip(self.conditions["condition_id"], col.fillna("").astype(str))
+                if m}
+
+    def _stated_index(self) -> dict:
+        """{condition index: mode index} of the stated modes the model emulates."""
+        if self.conditions.get("motion_mode") is None:
+            return {}
+        modes = list(self.mode_classifier_.modes_)
+        cids = list(self.conditions["condition_id"])
+        return {cids.index(c): modes.index(m) for c, m in self.stated_modes().items()
+                if m is not None}
 
     @staticmethod
     def _mixed(per, P, sd=True) -> dict:

@@ -973,6 +973,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
             "settings": dataclasses.asdict(state.settings),
             "waves": {str(k): v for k, v in state.waves.items()},
             "n_model_runs": int(len(model.runs_)), "motion_modes": model.mode_counts(),
+            "stated_motion_modes": model.stated_modes(),
             "new_runs": int(new_runs),
             "wall_s": wall_s, "flight_conditions": state.flight_ids,
             "alpha": state.settings.alpha,

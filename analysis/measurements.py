@@ -100,9 +100,11 @@ _UNIT_TOKENS = {
 
 # required and optional columns: name -> (kind, rule); kind 'float', 'int', 'str'
 # rules: 'pos' (> 0), 'nonneg' (>= 0), 'any' (finite), 'pct' (0..100), 'posint' (1, 2, ...),
-# 'id' (non-empty text), 'phase' (one of PHASES or no label; kept as read)
+# 'id' (non-empty text), 'phase' (one of PHASES or no label; kept as read), 'mode' (one of
+# the twin's motion modes, yade_scripts.twin_modes.MOTION_MODES, or empty: not stated)
 _CONDITIONS_REQUIRED = {"condition_id": "id", "frequency_hz": "pos", "ball_diameter_mm": "pos"}
-_CONDITIONS_OPTIONAL = {"amplitude_mm": "pos", "n_balls": "posint", "fill_g": "nonneg"}
+_CONDITIONS_OPTIONAL = {"amplitude_mm": "pos", "n_balls": "posint", "fill_g": "nonneg",
+                        "motion_mode": "mode"}
 # 'sd': > 0 (a standard deviation: negative is impossible, 0 claims an exact measurement)
 _SUMMARY_REQUIRED = {"condition_id": "id", "v_mean_m_s": "nonneg", "f_col_hz": "nonneg"}
 _SUMMARY_SD = {"v_mean_sd_m_s": "sd", "f_col_sd_hz": "sd"}  # required columns, empty cells ok
@@ -352,6 +354,16 @@ def _validate_table(df, fname, required, optional=None, empty_ok=None, known_ids
             continue
         if rule == "text":
             continue                       # kept as read, unchecked
+        if rule == "mode":
+            from yade_scripts.twin_modes import MOTION_MODES
+            vals = ["" if pd.isna(v) else str(v).strip() for v in df[col]]
+            for i, v in enumerate(vals, start=1):
+                if v and v not in MOTION_MODES:
+                    raise DatasetError("%s: motion mode %r is not one of %s (or empty: not "
+                                       "stated)" % (_where(fname, i, col), v,
+                                                    ", ".join(MOTION_MODES)))
+            out[col] = vals
+            continue
         if rule == "phase":
             for i, v in enumerate(df[col], start=1):
                 try:

@@ -468,3 +468,37 @@ def test_the_emulator_check_scores_new_runs_on_the_mixture(moded):
     for f, train in enumerate(seen):
         test = set(per.loc[per["fold"] == f, "point"])
         assert test and not test & train and test | train == set(runs["point"])
+
+
+def test_a_stated_motion_mode_is_applied_at_its_condition(moded):
+    """A dataset that states each condition's motion mode (conditions' motion_mode, seen in
+    the film): at those conditions the model predicts that mode alone - the fit scores the data
+    in it even where the other mode would fit (a wrong statement moves the prediction by the
+    jump) - and a mode the model does not emulate is reported as not applied, leaving the
+    classifier's mixture there."""
+    from analysis.diagnose import calibrate_base
+    from analysis.loop import WithAdded, fitted_parameters
+    m, runs = moded["split"], moded["runs"]
+    truth = {"restitution": 0.445, "amplitude_m": 0.0131}
+    obs, modes = data_in_modes(truth, 0)
+    flip = {"chatter": "end_to_end", "end_to_end": "chatter"}
+    wrong = dict(modes, c3=flip[modes["c3"]])
+    stated = CONDITIONS.assign(motion_mode=[wrong[c] for c in CONDITIONS["condition_id"]])
+    stated.loc[5, "motion_mode"] = "rolling"                  # no run rolls: not applied
+    with threadpool_limits(1):
+        s = EmulatedTwin(stated, space(), theta_ref=m.theta_ref).fit(runs)
+    assert s.stated_modes() == dict(wrong, c6=None)
+    P = s.mode_parts(pd.DataFrame([truth | {n: 0.0 for n in s.space.effect_names}]))[1][0]
+    k = list(s.mode_classifier_.modes_)
+    for i, c in enumerate(CONDITIONS["condition_id"][:5]):
+        assert P[i, k.index(wrong[c])] == 1.0
+    assert 0.0 < P[5, 0] < 1.0
+    fits = {}
+    for name, model in (("stated", s), ("mixture", m)):
+        _, fits[name] = calibrate_base(model.predict, obs, fitted_parameters(m, m.theta_ref, {}),
+                                       model_se=WithAdded(model, {}, m.theta_ref).model_se())
+    f = obs.set_index(["condition_id", "observable"])["value"]
+    key = ("c3", "f_col_hz")
+    assert abs(fits["mixture"].prediction[key] - f[key]) < CHATTER_DF_HZ / 6
+    assert abs(fits["stated"].prediction[key] - f[key]) > CHATTER_DF_HZ / 2
+    assert fits["stated"].mode[list(fits["stated"].prediction.index).index(key)] == wrong["c3"]

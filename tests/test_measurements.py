@@ -264,3 +264,21 @@ def test_cli(ds_dir, capsys):
     assert main([str(ds_dir)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "v_mean_mm_s" in err
+
+
+def test_a_stated_motion_mode_is_one_of_the_twins_or_empty():
+    """conditions.csv's optional motion_mode: the twin's names or empty (not stated); any other
+    word is one error naming the row, the column and the names allowed."""
+    from analysis.measurements import DatasetError, validate_conditions_table
+    from yade_scripts.twin_modes import MOTION_MODES
+    df = pd.DataFrame({"condition_id": ["a", "b", "c"], "frequency_hz": ["25", "30", "22"],
+                       "ball_diameter_mm": ["17.5", "20.6", "17.5"],
+                       "motion_mode": ["end_to_end", "", "chatter"]})
+    out = validate_conditions_table(df)
+    assert list(out["motion_mode"]) == ["end_to_end", "", "chatter"]
+    df.loc[1, "motion_mode"] = "bouncing"
+    with pytest.raises(DatasetError) as e:
+        validate_conditions_table(df)
+    msg = str(e.value)
+    assert "row 2 (line 3), column 'motion_mode'" in msg and "'bouncing'" in msg, msg
+    assert all(m in msg for m in MOTION_MODES)

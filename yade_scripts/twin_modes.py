@@ -18,6 +18,10 @@ import numpy as np
 SLOW_SPEED_M_S = 0.5
 
 
+#: the motion modes :func:`classify_motion` names (a recording's ``summary.motion_mode``)
+MOTION_MODES = ("end_to_end", "chatter", "rolling", "slow", "irregular")
+
+
 def classify_motion(v_mean_m_s, frequency_hz, end_times_s, end_sides, duration_s,
                     cylinder_contact_fraction):
     """Name the motion of a recorded window.
