@@ -1175,12 +1175,20 @@ def _interval_words(parameters, name):
                                           float(r["profile_hi"].iloc[0]))
 
 
-def rerun_words(rr, final):
+def rerun_words(rr, final, alpha=None, added=()):
     """The twin rerun's chi2/dof beside the model's, and whether the emulator's stated
     uncertainty covered the rerun (:func:`emulator_vs_twin`, before the rerun's runs joined
-    it)."""
+    it). With ``alpha``: when the rerun misfits the data (p < alpha) where the model's fit
+    does not, the words say the twin does not confirm the fit - and the effects ``added``
+    are then the emulator's answer, not the twin's."""
     out = ("the real twin rerun at the final parameters: chi2/dof %.2f, the emulator's there "
            "%.2f" % (rr.chi2_dof, final.chi2_dof))
+    p_rr = float(stats.chi2.sf(rr.chi2, max(rr.dof, 1)))
+    if alpha is not None and p_rr < alpha <= final.p_value:
+        out += (" - the twin does NOT confirm the fit (its rerun's p = %.2g)%s; more runs "
+                "where the fit lands decide it" % (
+                    p_rr, "" if not added else ": %s %s named on the emulator only"
+                    % (", ".join(added), "is" if len(added) == 1 else "are")))
     ev = rr.emulator_vs_twin
     if ev and ev["n"]:
         cover = ev["p"] >= COVER_P
@@ -1310,7 +1318,7 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
     if loose:
         parts.append("not constrained by the data: " + ", ".join(loose))
     if rr is not None:
-        parts.append(rerun_words(rr, final))
+        parts.append(rerun_words(rr, final, alpha, list(added)))
     return status, ". ".join(parts) + "."
 
 

@@ -820,3 +820,20 @@ def test_a_freed_apparatus_parameter_is_calibrated_with_the_contact_parameters(t
         loop.free_parameters(["jar_fillet_radius_m"], None, ("end_fillet",))
     narrow = loop.loop_space(ds, (), loop.free_parameters(["restitution=0.2:0.5"]))
     assert narrow.bounds()["restitution"] == (0.2, 0.5)
+
+
+def test_the_verdict_says_when_the_twin_does_not_confirm_the_fit():
+    """A twin rerun that misfits the data (p < alpha) where the emulator's fit does not:
+    the verdict says the twin does not confirm it and that the effects are the emulator's
+    answer; a rerun that fits, or a model that misfits too, gets no such words."""
+    from types import SimpleNamespace
+    from analysis.loop import RerunScore, rerun_words
+    def score(chi2, dof=11):
+        return RerunScore(prediction=pd.Series(dtype=float), z=pd.Series(dtype=float),
+                          chi2=chi2, dof=dof)
+    fit = SimpleNamespace(chi2_dof=0.91, p_value=0.53)
+    w = rerun_words(score(249.3), fit, 0.01, ["jar_compliance"])
+    assert "does NOT confirm" in w and "jar_compliance is named on the emulator only" in w, w
+    assert "NOT confirm" not in rerun_words(score(12.0), fit, 0.01, ["jar_compliance"])
+    bad = SimpleNamespace(chi2_dof=3.1, p_value=1e-4)
+    assert "NOT confirm" not in rerun_words(score(249.3), bad, 0.01, [])
