@@ -157,6 +157,8 @@ class EmulatedTwin:
                 direct.append(len(keys)), d_row.append(rows[o]), d_col.append(i)
                 keys.append((cid, o))
         self.keys = pd.MultiIndex.from_tuples(keys, names=["condition_id", "observable"])
+        #: each key's condition (its index in self.conditions)
+        self._key_condition = np.array([cids.index(k[0]) for k in keys], int)
         self._lay = (np.array(direct, int), np.array(d_row, int), np.array(d_col, int),
                      np.array(y_pos, int), np.array(y_col, int), np.array(y_t, float))
 
@@ -425,12 +427,10 @@ class EmulatedTwin:
         per, P, _ = self._modes_at(theta, effects)
         means = [self._assemble(per[k], theta, effects, "mean").to_numpy(float) for k in per]
         covs = [self._latent_cov(per[k], theta, effects) for k in per]
-        cids = list(self.conditions["condition_id"])
         return ModeComponents(modes=tuple(per), keys=self.keys, mean=np.stack(means),
                               cov=np.stack(covs),
                               log_p=np.log(np.clip(P[0].T, 1e-300, 1.0)),
-                              condition=np.array([cids.index(c) for c in
-                                                  self.keys.get_level_values(0)], int))
+                              condition=self._key_condition)
 
     def _assemble(self, parts, theta, effects, which):
         """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
