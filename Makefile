@@ -175,7 +175,7 @@ CHAIN = --with-effect apparent_scale --with-effect smoothing_window --with-effec
 table3-chain: setup
 	for sd in 0.01 0.005 0.02; do \
 	  $(VPY) -m analysis.loop --dataset data/measurements/paper_table3 --workers 1 \
-	    --v-rel-sd $$sd $(CHAIN) --out results/table3_chain/sd$$sd || exit $$?; \
+	    --v-rel-sd $$sd --confirm-rounds 3 $(CHAIN) --out results/table3_chain/sd$$sd || exit $$?; \
 	done
 
 # one Markdown page per study folder in results/ and the index results/README.md

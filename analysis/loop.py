@@ -29,7 +29,8 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    ``--rerun-replicates`` per condition); these runs join the training runs (they are design
    points too), the emulator is refitted and the final fit redone on it; a final point that
    moves by more than :data:`CONFIRM_TOL_SE` standard errors gets its own rerun
-   (``--confirm-rounds``).
+   (``--confirm-rounds``), after a focus wave when the emulator missed the rerun or the
+   refitted point leans on its uncertainty (:func:`lean_of`, :data:`SURE_SHARE`).
 7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator.
 8. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
@@ -111,6 +112,11 @@ CONFIRM_TOL_SE = 0.5
 CONFIRM_SEED0 = 100
 #: seed of the focus wave's runs (the design's seed added)
 FOCUS_SEED0 = 50
+#: a fitted point is final only where the emulator knows the twin: its sd there at most this
+#: share of the data's at every observation, or the data fit its mean with their own sd alone
+#: (history matching's stop: the emulator's variance small beside the others', or not the
+#: reason the point is plausible); otherwise another focus wave and rerun refine it
+SURE_SHARE = 0.5
 
 
 @dataclass
@@ -283,15 +289,67 @@ class Rerun:
     runs: pd.DataFrame
     score: RerunScore
     moved_se: float                  # how far the refit with its runs moved the point [se]
-    focus: dict | None = None        # the focus wave it triggered (the emulator missed it)
+    focus: dict | None = None        # the focus wave it triggered (missed or not sure)
+    lean: Lean | None = None         # the refit's lean on the emulator (:func:`lean_of`)
 
     def record(self) -> dict:
         """What loop.json's ``reruns`` holds of it (no runs: model_runs.csv has them)."""
         out = {"round": self.round, "point": self.point, "moved_se": self.moved_se}
         if self.focus is not None:
             out["focus"] = self.focus
+        if self.lean is not None:
+            out["lean"] = self.lean.record()
         return out | {"chi2": self.score.chi2, "dof": self.score.dof,
                       "emulator_vs_twin": self.score.emulator_vs_twin}
+
+
+@dataclass
+class Lean:
+    """How much a fit leans on the emulator's uncertainty (:func:`lean_of`)."""
+
+    share: float                     # largest emulator sd / data sd over the observations
+    worst: str                       # the observation of that share
+    chi2_data: float                 # chi2 at the fit's means with the data's sd alone
+    dof: int
+    p_data: float                    # its p-value (chi2 with dof)
+    alpha: float                     # the level it is judged at
+
+    @property
+    def sure(self) -> bool:
+        """The point may be final: the emulator's sd is small beside the data's, or the data
+        fit the emulator's means without it."""
+        return self.share <= SURE_SHARE or self.p_data >= self.alpha
+
+    def record(self) -> dict:
+        return {"share": self.share, "worst": self.worst, "chi2_data": self.chi2_data,
+                "dof": self.dof, "p_data": self.p_data, "sure": self.sure}
+
+    def words(self) -> str:
+        return ("the emulator's sd there is %.2f of the data's (at %s); at its means with the "
+                "data's sd alone chi2/dof %.2f (p = %.2g)"
+                % (self.share, self.worst, self.chi2_data / max(self.dof, 1), self.p_data))
+
+
+def lean_of(fit, obs, alpha) -> Lean:
+    """How far ``fit`` (a FitResult scored with the emulator's sd in sigma) rests on the
+    emulator's uncertainty at its point: per observation of ``obs`` the emulator's sd
+    sqrt(sigma^2 - sd^2) against the data's sd, and the chi2 of the fit's means (each condition
+    in the motion mode it was scored in) with the data's sd alone. A point where the data are
+    plausible only because the emulator does not know the twin there is not yet a result."""
+    key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
+    sd = pd.Series(obs["sd"].to_numpy(float), index=key).reindex(fit.prediction.index)
+    sigma = (pd.Series(fit.sigma, index=fit.prediction.index) if fit.sigma is not None
+             else sd)
+    measured = fit.prediction - fit.residuals * sigma
+    em = np.sqrt(np.maximum(sigma ** 2 - sd ** 2, 0.0))
+    share = (em / sd).fillna(0.0)
+    z = (fit.prediction - measured) / sd
+    chi2 = float(np.nansum(z ** 2))
+    dof = max(int(np.isfinite(z).sum()) - len(fit.params), 1)
+    i = share.idxmax() if len(share) else ("", "")
+    return Lean(share=float(share.max()) if len(share) else 0.0, worst="%s %s" % i,
+                chi2_data=chi2, dof=dof, p_data=float(stats.chi2.sf(chi2, dof)),
+                alpha=float(alpha))
 
 
 def rerun_score(obs, pred, se, final, n_params) -> RerunScore:
@@ -836,9 +894,11 @@ def confirm_stage(state: LoopState, twin, log=print):
     """The twin at the final point (a design point), the emulator refitted with its runs, the
     final fit redone; the next round (``confirm_rounds`` at most) when the point moved by
     :data:`CONFIRM_TOL_SE` or more, or when the rerun fell beyond the emulator's stated
-    uncertainty (:func:`emulator_vs_twin` p < :data:`COVER_P`) - then a focus wave about the
-    refitted point first (:func:`focus_wave`: the emulator is wrong there, one point's runs
-    do not teach it the neighbourhood), the calibration and the selection redone on it."""
+    uncertainty (:func:`emulator_vs_twin` p < :data:`COVER_P`), or when the refitted point
+    leans on the emulator's uncertainty (:func:`lean_of`: the data plausible there only
+    because the emulator does not know the twin) - then a focus wave about the refitted point
+    first (:func:`focus_wave`: one point's runs do not teach the emulator the neighbourhood),
+    the calibration and the selection redone on it."""
     from analysis.history_matching import design_runs
     s, m = state.settings, state.model
     cands = candidates()
@@ -877,14 +937,17 @@ def confirm_stage(state: LoopState, twin, log=print):
                "without %s" % ", ".join(d["effect"] for d in dropped)))
         state.final = refit
         state.set_point(theta, added)
+        lean = state.reruns[-1].lean = lean_of(refit, state.obs, s.alpha)
         ev = score.emulator_vs_twin
         missed = ev["p"] < COVER_P
-        if (moved < CONFIRM_TOL_SE and not missed) or r + 1 == s.confirm_rounds:
+        if ((moved < CONFIRM_TOL_SE and not missed and lean.sure)
+                or r + 1 == s.confirm_rounds):
             break
-        if missed:
-            log("the emulator missed the twin rerun (chi2 %.1f for %d observations, p = %.2g): "
-                "a focus wave about the refitted point before the next rerun"
-                % (ev["chi2"], ev["n"], ev["p"]))
+        if missed or not lean.sure:
+            log(("the emulator missed the twin rerun (chi2 %.1f for %d observations, p = %.2g)"
+                 % (ev["chi2"], ev["n"], ev["p"]) if missed else
+                 "the refitted point leans on the emulator's uncertainty: " + lean.words())
+                + ": a focus wave about the refitted point before the next rerun")
             before = list(state.stair)
             state.reruns[-1].focus = focus_wave(state, twin, log,
                                                    wave="focus after rerun %d" % (r + 1),
@@ -958,9 +1021,10 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     if rr is not None:
         comp["twin_rerun"] = rr.prediction.to_numpy(float)
         comp["z_twin_rerun"] = rr.z.to_numpy(float)
+    lean = lean_of(final, state.obs, state.settings.alpha)
     status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
                                      dataset, model, state.settings.alpha, parameters,
-                                     state.dropped)
+                                     state.dropped, lean)
     phys = physics_table(dataset.conditions)
     reruns = (pd.concat([r.runs for r in state.reruns], ignore_index=True)
               if state.reruns else None)
@@ -983,7 +1047,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
                             failed[[c for c in ("run_id", "error", "wave", "point",
                                                 "condition_id", "seed") if c in failed]]
                             .to_dict("records")),
-            "reruns": [r.record() for r in state.reruns]}
+            "reruns": [r.record() for r in state.reruns], "final_lean": lean.record()}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (state.added[k], eff_se[k]) for k in state.added},
                       staircase=pd.DataFrame(state.stair), diagnosis=diagnosis, steps=steps,
@@ -1234,7 +1298,7 @@ def _diagnosis_table(steps, added, eff_se):
 
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
-                   parameters=None, dropped=()):
+                   parameters=None, dropped=(), lean=None):
     from analysis.report.loop_words import is_constrained, prior_sd, spread_of, \
         stated_stroke_words
     head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
@@ -1319,6 +1383,11 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
         parts.append("not constrained by the data: " + ", ".join(loose))
     if rr is not None:
         parts.append(rerun_words(rr, final, alpha, list(added)))
+    if lean is not None and not lean.sure:
+        parts.append("the final point leans on the emulator's uncertainty: %s - the data are "
+                     "plausible there because the emulator does not know the twin yet, not "
+                     "because the twin fits them; more runs there (--confirm-rounds) decide it"
+                     % lean.words())
     return status, ". ".join(parts) + "."
 
 
@@ -1582,8 +1651,10 @@ def _main(argv=None):
     ap.add_argument("--confirm-rounds", type=int, default=d.confirm_rounds,
                     help="most twin reruns: after each the emulator is refitted with the "
                     "rerun's runs and the fit redone; a point that moves by more than %.1f se "
-                    "gets the next, a rerun beyond the emulator's stated uncertainty a focus "
-                    "wave first [rounds] (default %%(default)s)" % CONFIRM_TOL_SE)
+                    "gets the next, a rerun beyond the emulator's stated uncertainty or a point "
+                    "that leans on it (its sd above %.1f of the data's where they misfit its "
+                    "means) a focus wave first [rounds] (default %%(default)s)"
+                    % (CONFIRM_TOL_SE, SURE_SHARE))
     ap.add_argument("--no-intervals", action="store_true",
                     help="skip the profile-likelihood intervals (the se only)")
     ap.add_argument("--alpha", type=float, default=d.alpha,
