@@ -837,3 +837,67 @@ def test_the_verdict_says_when_the_twin_does_not_confirm_the_fit():
     assert "NOT confirm" not in rerun_words(score(12.0), fit, 0.01, ["jar_compliance"])
     bad = SimpleNamespace(chi2_dof=3.1, p_value=1e-4)
     assert "NOT confirm" not in rerun_words(score(249.3), bad, 0.01, [])
+
+
+def test_lean_separates_the_emulators_ignorance_from_a_fit():
+    """lean_of against numbers built by hand: with the emulator's sd 2 x the data's at one
+    observation (sigma^2 = sd^2 + (2 sd)^2) and the fit's mean 4 data sds off there, the share
+    is 2 there and the chi2 with the data's sd alone is 16 + the rest: not sure; the same
+    ignorance where the mean fits the data is sure (the data fit without it), and so is a
+    misfit the emulator knows (share <= 0.5: the misfit is the twin's, not its ignorance)."""
+    from types import SimpleNamespace
+    from analysis.loop import SURE_SHARE, lean_of
+    keys = pd.MultiIndex.from_product([["c1", "c2"], ["v_mean_m_s", "f_col_hz"]],
+                                      names=["condition_id", "observable"])
+    sd = np.array([0.02, 1.0, 0.03, 1.0])
+    obs = keys.to_frame(index=False).assign(value=[2.0, 50.0, 2.2, 55.0], sd=sd)
+
+    def fit_with(em, off):
+        sigma = np.sqrt(sd ** 2 + em ** 2)
+        pred = obs["value"].to_numpy() + off * sd
+        return SimpleNamespace(prediction=pd.Series(pred, index=keys),
+                               residuals=pd.Series(off * sd / sigma, index=keys),
+                               sigma=sigma, params={"restitution": 0.3})
+    em = np.array([0.04, 0.1, 0.003, 0.1])
+    lean = lean_of(fit_with(em, np.array([4.0, 0.5, 0.2, 0.1])), obs, 0.01)
+    assert lean.share == pytest.approx(2.0) and lean.worst == "c1 v_mean_m_s"
+    assert lean.chi2_data == pytest.approx(16.0 + 0.25 + 0.04 + 0.01)
+    assert lean.dof == 3 and lean.p_data < 0.01 and not lean.sure
+    assert lean_of(fit_with(em, np.full(4, 0.3)), obs, 0.01).sure
+    known = lean_of(fit_with(em * SURE_SHARE / 2.0, np.array([4.0, 0.5, 0.2, 0.1])), obs, 0.01)
+    assert known.share == pytest.approx(SURE_SHARE) and known.p_data < 0.01 and known.sure
+    assert set(lean.record()) == {"share", "worst", "chi2_data", "dof", "p_data", "sure"}
+
+
+@pytest.mark.parametrize("v_rel_sd, leans", [(0.001, True), (0.02, False)])
+def test_a_point_that_leans_on_the_emulator_is_refined_before_it_is_final(tmp_path, v_rel_sd,
+                                                                          leans):
+    """Data 10x sharper than one twin run's chaos, with an effect hidden that the loop may
+    not add (--max-effects 0): the refitted point misfits the emulator's means by far more
+    than the data's sd allow and the emulator's sd there is several of the data's - it leans,
+    so a focus wave runs before the second rerun and the final lean is in loop.json. With
+    data 2 % sd and no effect hidden the point is sure and no such wave runs."""
+    from analysis.hidden import make_hidden_dataset
+    hidden = {"jar_compliance": {"f_n_hz": 110.0}} if leans else {}
+    ds_dir, _ = make_hidden_dataset(
+        "lean", hidden, conditions=NEW_CONDITIONS, replicates=1, seed=3, runner=run_fake_twin,
+        runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth",
+        twin_v_rel_sd=0.01, twin_f_col_sd_hz=0.5, progress=False, v_rel_sd=v_rel_sd,
+        yield_times_min=())
+    settings = loop.LoopSettings(points=10, waves=1, per_wave=3, focus_points=3, null_draws=0,
+                                 rerun_replicates=2, confirm_rounds=2, intervals=False,
+                                 max_effects=0)
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
+                    progress=False)
+    res = loop.run_loop(load_dataset(ds_dir), settings, twin=twin, progress=False,
+                        log=lambda s: None)
+    first = res.info["reruns"][0]["lean"]
+    waves = set(res.model_runs["wave"].astype(str))
+    assert first["sure"] is (not leans), first
+    assert ("focus after rerun 1" in waves) is leans
+    if leans:
+        assert first["share"] > loop.SURE_SHARE and first["p_data"] < settings.alpha
+        assert len(res.info["reruns"]) == 2
+    if not leans:
+        assert res.info["final_lean"]["sure"]
+    assert ("leans on the emulator" in res.verdict) is (not res.info["final_lean"]["sure"])
