@@ -10,12 +10,6 @@ from dataclasses import dataclass
 
 from effects import diagnose_entries
 
-#: signature strengths, fractions of each DEM effect's s_max: the response between them (and
-#: from 0 to the first) is interpolated linearly; jar compliance's resonance gain and the impact
-#: observables' response are far from linear over the whole range
-SIGNATURE_LEVELS = (0.5, 1.0)
-
-
 @dataclass(frozen=True)
 class Candidate:
     """One catalog effect as a diagnose candidate, declared by the effect's own file (the
@@ -31,10 +25,6 @@ class Candidate:
         'square' (strength = (param / p0)^2)
     p0 : reference of the non-linear coordinates
     fixed : further parameters of the effect (defaults otherwise)
-    levels : signature strengths as fractions of s_max (None: ``SIGNATURE_LEVELS``)
-    replicates : seeds per signature level and condition (None: the default)
-    (``levels`` and ``replicates`` were read by the signature library, retired 2026-12-03; the
-    effect declarations still state them)
     """
 
     name: str
@@ -45,12 +35,6 @@ class Candidate:
     coord: str = "linear"
     p0: float = 1.0
     fixed: tuple = ()
-    levels: tuple | None = None
-    replicates: int | None = None
-
-    @property
-    def signature_levels(self):
-        return tuple(self.levels or SIGNATURE_LEVELS)
 
     def param_value(self, s):
         """Catalog parameter value for strength ``s`` (> 0)."""
@@ -87,13 +71,9 @@ class Candidate:
         """The candidate an effect declares: its DECLARATION's "diagnose" entry (the fields
         above; "order", "optional" and "decoy" are the catalog's, not the candidate's)."""
         fixed = entry.get("fixed") or {}
-        levels = entry.get("levels")
-        replicates = entry.get("replicates")
         return cls(name, kind, entry["param"], float(entry["s_max"]), entry["unit"],
                    coord=entry.get("coord", "linear"), p0=float(entry.get("p0", 1.0)),
-                   fixed=tuple(dict(fixed).items()),
-                   levels=None if levels is None else tuple(float(x) for x in levels),
-                   replicates=None if replicates is None else int(replicates))
+                   fixed=tuple(dict(fixed).items()))
 
 
 def _declared_candidates(optional):

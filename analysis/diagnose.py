@@ -67,9 +67,6 @@ The method
    (trend with frequency, ball-size split, offset of one observable, single outliers), tested in
    the same projected way, Bonferroni over the descriptors.
 
-:func:`add_effect` switches the chosen effect on, refits base + strength, and returns before /
-after tables and the chi2/dof staircase (baseline, calibrated, with effect).
-
 Noise of a stochastic twin: with fresh replicate noise at every call (``crn_correlation=0``)
 finite differences carry sqrt(2) x the replicate-mean noise; the identifiability gate then asks
 for a footprint >= 3 x that noise, which costs power (toy model: rank-1 rate fell from 100 % to
@@ -181,7 +178,7 @@ class FitResult:
     mode : ndarray or None, per key the motion mode the fit scored it in (a model with
         modes: the likelihood's mixture, :class:`Problem`); None without modes
     penalty : float, sum log(sigma^2 / sd^2) at the optimum when sigma depends on the
-        parameters (a callable model_se) or the strength (``effect_se``), else 0 (sd the data's
+        parameters (a callable model_se), else 0 (sd the data's
         own, the same reference in every fit on these observations); ``objective`` = chi2 + penalty (-2 log likelihood up
         to a constant) is what fits are compared by
     """
@@ -269,40 +266,6 @@ class Diagnosis:
 
     def to_frame(self) -> pd.DataFrame:
         return self.table.copy()
-
-
-@dataclass
-class AddEffectResult:
-    """Result of :func:`add_effect`.
-
-    Attributes
-    ----------
-    effect : str
-    staircase : DataFrame, rows baseline / calibrated / with <effect>:
-        stage, chi2, dof, chi2_dof, p_value, n_params
-    before, after : FitResult (calibrated without / with the effect)
-    strength, strength_se : float
-    """
-
-    effect: str
-    staircase: pd.DataFrame
-    before: FitResult
-    after: FitResult
-    baseline: FitResult
-    strength: float
-    strength_se: float
-
-    def to_frame(self) -> pd.DataFrame:
-        """Per key: measured, sigma, model and z before (calibrated) and after (with effect)."""
-        b, a = self.before, self.after
-        return pd.DataFrame({"model_calibrated": b.prediction, "z_calibrated": b.residuals,
-                             "model_with_effect": a.prediction, "z_with_effect": a.residuals})
-
-    def summary(self) -> str:
-        s = self.staircase
-        steps = ", ".join("%s %.2f" % (r.stage, r.chi2_dof) for r in s.itertuples())
-        return ("%s switched on: strength %.4g +- %.2g; chi2/dof %s"
-                % (self.effect, self.strength, self.strength_se, steps))
 
 
 # --------------------------------------------------------------------------- the problem
@@ -405,7 +368,7 @@ class Problem:
     """Whitened least-squares problem around a black-box ``predict``."""
 
     def __init__(self, predict, observations, base_params, effects, model_se, fixed_effects,
-                 base_step_frac, conditions, effect_se=None):
+                 base_step_frac, conditions):
         if isinstance(observations, Dataset):
             conditions = observations.conditions if conditions is None else conditions
             observations = observations_from_dataset(observations)
@@ -467,10 +430,9 @@ class Problem:
         # - so the objectives of fits made in different Problems (a calibration, a selection
         # step, a profile's inner fits) can be compared: with a model_se that depends on where
         # it is asked, the data's own sd (sigma >= sd; sigma only where no sd is stated), else
-        # the constant sigma (the strength's effect_se adds to it)
+        # the constant sigma
         self._sigma_ref = (np.where(sd > 0, sd, self.sigma) if self._se_fn is not None
                            else self.sigma)
-        self.effect_se = effect_se
         self._esig = {}
         if np.any(self.sigma <= 0):
             raise ValueError("observations: zero uncertainty (sd and model_se both 0) at %r"
@@ -602,7 +564,7 @@ class Problem:
     @property
     def varying_sigma(self):
         """sigma depends on the parameters (a callable model_se) or on the strengths."""
-        return self._se_fn is not None or self.effect_se is not None
+        return self._se_fn is not None
 
     def penalty(self, effects, theta=None):
         """sum log(sigma^2 / sd^2) at these effect strengths (and base parameters, with a
@@ -627,7 +589,7 @@ class Problem:
         return self._mixture(theta, effects or {}).rows
 
     def chol(self, effects, theta=None):
-        """The lower Cholesky factor of the covariance diag(sd^2 + effect_se^2) + K at these
+        """The lower Cholesky factor of the covariance diag(sd^2) + K at these
         strengths and base parameters, K the model's own covariance (its ``.cov``); None when
         the model states none (the covariance is diag(sigma^2))."""
         if self._modes_fn is not None and theta is not None:
@@ -672,9 +634,8 @@ class Problem:
         return self.sigma_for(effects, theta) if L is None else np.diag(L)
 
     def sigma_for(self, effects, theta=None):
-        """sigma with the model's extra uncertainty at these effect strengths (``effect_se``,
-        e.g. a library's interpolation between its signature levels) added in quadrature; with
-        a callable model_se, the model's uncertainty at ``theta`` and these strengths."""
+        """sigma: the data's sd and the model's uncertainty in quadrature - with a callable
+        model_se, the model's uncertainty at ``theta`` and these strengths."""
         if self._modes_fn is not None and theta is not None:
             return self._mixture(theta, effects or {}).sigma
         if self._se_fn is not None and theta is not None:
@@ -692,29 +653,16 @@ class Problem:
                     raise ValueError("model_se returned a negative or non-finite value")
                 self._esig[key] = np.sqrt(self.sd ** 2 + se ** 2)
             return self._esig[key]
-        eff = dict(self.fixed)
-        eff.update(effects or {})
-        on = {k: float(v) for k, v in eff.items()
-              if k not in self.effects or v != self.effects[k].null}
-        if self.effect_se is None or not on:
-            return self.sigma
-        key = tuple(sorted(on.items()))
-        if key not in self._esig:
-            ex = pd.Series(self.effect_se(on))
-            ex = ex.reindex(self.keys).fillna(0.0).to_numpy(float)
-            if not np.all(np.isfinite(ex)) or np.any(ex < 0):
-                raise ValueError("effect_se returned a negative or non-finite value")
-            self._esig[key] = np.sqrt(self.sigma ** 2 + ex ** 2)
-        return self._esig[key]
+        return self.sigma
 
     # ---- fitting in normalised coordinates u in [0, 1]
     def fit(self, start_theta, effect=None, start_strength=None, max_nfev=200) -> FitResult:
         """Fit the base parameters (and the strength of ``effect`` when given).
 
-        With ``effect_se`` sigma depends on the strength, and the fit maximises the Gaussian
+        With a callable model_se sigma depends on the point, and the fit maximises the Gaussian
         likelihood: besides the whitened residuals, the objective holds sum log(sigma^2 /
-        sd^2) (as residual rows sqrt(log(...)) >= 0, sigma >= sd), so a strength is not preferred for
-        the uncertainty it adds. ``chi2`` is the residuals' part at the optimum."""
+        sd^2) (as residual rows sqrt(log(...)) >= 0, sigma >= sd), so a point is not preferred
+        for the uncertainty it adds. ``chi2`` is the residuals' part at the optimum."""
         names = [p.name for p in self.base]
         lo = np.array([p.lower for p in self.base], float)
         hi = np.array([p.upper for p in self.base], float)
@@ -727,7 +675,7 @@ class Problem:
             x0 = np.append(x0, e.null if start_strength is None else start_strength)
         span = hi - lo
         nb = len(self.base)
-        varying = (effect is not None and self.effect_se is not None) or self._se_fn is not None
+        varying = self._se_fn is not None
         sigma_0 = self._sigma_ref
 
         def unpack(u):
@@ -817,7 +765,7 @@ def _scan_starts(prob, theta, name, J=None, n_scan=None, n_best=2, exclude=()):
     ``exclude``. The base parameters are profiled out linearly: the whitened residual at
     (``theta``, strength) with its component along ``J`` (the whitened Jacobian of the base
     parameters at ``theta``, rescaled to that strength's sigma) removed, so a calibration that
-    absorbed part of the effect does not hide a distant minimum; with ``effect_se`` the
+    absorbed part of the effect does not hide a distant minimum; with a callable model_se the
     likelihood's log-sigma penalty is added."""
     e = prob.effects[name]
     n_scan = SCAN_POINTS if n_scan is None else int(n_scan)
@@ -865,7 +813,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
              conditions: pd.DataFrame | None = None, alpha: float = 0.01,
              min_footprint: float = 2.0, min_snr: float = 3.0,
              effect_step_frac: float = 0.25, base_step_frac: float = 1e-3,
-             structure: bool = True, noise_observables=None, effect_se=None) -> Diagnosis:
+             structure: bool = True, noise_observables=None) -> Diagnosis:
     """Rank candidate effects by how well each explains the residual after calibration.
 
     Parameters
@@ -909,18 +857,12 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         computed from the same draws, would count the same noise several times). None: all.
         A 'kinetics' effect acts after the twin, on the same draws: its signature carries no
         twin noise.
-    effect_se : callable or None
-        effects {name: strength} -> Series (condition_id, observable) of the model's extra
-        standard error with those effects on (e.g. a signature library's interpolation error
-        between its levels), added in quadrature to sigma in every fit with an effect; such a
-        fit maximises the Gaussian likelihood (see ``Problem.fit``). None: none.
-
     Returns
     -------
     Diagnosis
     """
     prob = Problem(predict, observations, base_params, effects, model_se, fixed_effects,
-                    base_step_frac, conditions, effect_se)
+                    base_step_frac, conditions)
     theta0 = {p.name: p.value for p in prob.base}
     baseline = prob.stage(theta0)
     cal = prob.fit(theta0)
@@ -1189,53 +1131,13 @@ def _structure_words(kind, o, cid, s):
 
 # --------------------------------------------------------------------------- add an effect
 
-def add_effect(predict, observations, base_params, effects, name: str, *, model_se=None,
-               fixed_effects: dict | None = None, start_strength: float | None = None,
-               base_step_frac: float = 1e-3, effect_se=None) -> AddEffectResult:
-    """Switch effect ``name`` on: refit base parameters and its strength jointly.
-
-    Parameters are those of :func:`diagnose` (``effect_se`` too); ``start_strength`` defaults
-    to the midpoint
-    between null and the far bound (also tried: the null side, the better optimum is kept).
-
-    Returns
-    -------
-    AddEffectResult : staircase of chi2/dof (baseline, calibrated, with <name>), before/after fits
-    """
-    prob = Problem(predict, observations, base_params, effects, model_se, fixed_effects,
-                    base_step_frac, None, effect_se)
-    if name not in prob.effects:
-        raise ValueError("unknown effect %r (candidates: %s)" % (name, ", ".join(prob.effects)))
-    e = prob.effects[name]
-    theta0 = {p.name: p.value for p in prob.base}
-    baseline = prob.stage(theta0)
-    before = prob.fit(theta0)
-    theta_c = {k: before.params[k] for k in theta0}
-    starts = [0.5 * (e.null + e.far) if start_strength is None else start_strength,
-              e.null + 0.05 * (e.far - e.null)]
-    scan = [s0 for s0, _ in _scan_starts(prob, theta_c, name, before.jac.to_numpy(),
-                                         exclude=starts)]
-    fits = [prob.fit(theta_c, effect=name, start_strength=s) for s in starts]
-    fits += [prob.fit(prob.profiled_start(theta_c, name, s), effect=name, start_strength=s)
-             for s in scan]
-    after = min(fits, key=lambda f: f.objective)
-    stages = [("baseline", baseline, 0), ("calibrated", before, len(prob.base)),
-              ("with %s" % name, after, len(prob.base) + 1)]
-    stair = pd.DataFrame([{"stage": s, "chi2": f.chi2, "dof": f.dof, "chi2_dof": f.chi2_dof,
-                           "p_value": f.p_value, "n_params": k} for s, f, k in stages])
-    return AddEffectResult(effect=name, staircase=stair, before=before, after=after,
-                           baseline=baseline, strength=after.params[name],
-                           strength_se=after.stderr[name])
-
-
 def calibrate_base(predict, observations, base_params, *, model_se=None,
-                   fixed_effects: dict | None = None, base_step_frac: float = 1e-3,
-                   effect_se=None):
+                   fixed_effects: dict | None = None, base_step_frac: float = 1e-3):
     """(baseline, calibrated) FitResults: the model at the base parameters' starting values, and
     with the base parameters fitted (effects off, ``fixed_effects`` held) - the calibration step
     of :func:`diagnose` on its own, for a loop that re-anchors its model before it diagnoses."""
     prob = Problem(predict, observations, base_params, [], model_se, fixed_effects,
-                    base_step_frac, None, effect_se)
+                    base_step_frac, None)
     theta0 = {p.name: p.value for p in prob.base}
     return prob.stage(theta0), prob.fit(theta0)
 
@@ -1265,7 +1167,7 @@ class ProfileInterval:
 
 def profile_interval(predict, observations, base_params, name, fit: FitResult, *,
                      model_se=None, level=0.95, base_step_frac: float = 1e-3,
-                     effect_se=None, max_steps=40) -> ProfileInterval:
+                     max_steps=40) -> ProfileInterval:
     """The ``level`` profile-likelihood interval of parameter ``name`` of ``fit``.
 
     The other parameters of ``base_params`` are refitted with ``name`` held at each trial
@@ -1308,11 +1210,10 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
                                 q.lower, q.upper) for q in others]
         if not starts:
             prob = Problem(pred, observations, [BaseParameter("_none", 0.5, 0.0, 1.0)], [],
-                           ms, None, base_step_frac, None, effect_se)
+                           ms, None, base_step_frac, None)
             f = prob.stage({"_none": 0.5})
         else:
-            prob = Problem(pred, observations, starts, [], ms, None, base_step_frac, None,
-                           effect_se)
+            prob = Problem(pred, observations, starts, [], ms, None, base_step_frac, None)
             f = prob.fit({q.name: q.value for q in starts})
             start.update({q.name: f.params[q.name] for q in starts})
         return f.objective - fit.objective - thr

@@ -14,8 +14,7 @@ powder line (or a kinetics effect) exactly, as in the paper.
 
 It meets :class:`TwinModelContract`, the shape the loop's calibration and diagnosis use
 (``predict(theta, effects)`` a Series by (condition_id, observable); ``model_se`` the
-emulator's own sd of the twin's mean there; ``resolution_se(effects)`` what switching effects
-on adds to it; ``flight_run_sd`` one run's chaos of the impact observables, which a measured
+emulator's own sd of the twin's mean there; ``flight_run_sd`` one run's chaos of the impact observables, which a measured
 track - one realisation - carries).
 
 :func:`build_in_waves` makes the runs: wave 0 a space-filling design with one effect on in half
@@ -64,8 +63,6 @@ class TwinModelContract(Protocol):
     def predict(self, theta: Mapping, effects: Mapping | None = None) -> pd.Series: ...
 
     def model_se(self, theta: Mapping | None = None) -> pd.Series: ...
-
-    def resolution_se(self, effects: Mapping) -> pd.Series: ...
 
     def flight_run_sd(self) -> pd.Series: ...
 
@@ -570,11 +567,6 @@ class EmulatedTwin:
         correlation of one emulator's errors across the conditions off it."""
         theta = dict(theta or self.theta_ref)
         return self._latent_cov(self._parts_at(theta, effects), theta, effects)
-
-    def resolution_se(self, effects) -> pd.Series:
-        """Zero: the emulator's sd with effects on is part of :meth:`model_se` at the point
-        asked (``state_dependent_se``), not a separate term."""
-        return pd.Series(0.0, index=self.keys)
 
     def chaos_sd(self, theta=None, effects=None) -> pd.Series:
         """One twin run's scatter about its mean at ``theta`` (default theta_ref) with the DEM

@@ -452,10 +452,6 @@ class GPEmulator(_UnitCube):
             ss.append(sd * scale)
         return np.column_stack(ys), np.column_stack(ms), np.column_stack(ss)
 
-    def loo_predictions(self):
-        """Closed-form leave-one-out mean and sd at the training runs (see :meth:`leave_out`)."""
-        return self.leave_out(None)
-
     def loo_report(self, groups=None):
         """Leave-out error per output.
 

@@ -235,20 +235,7 @@ class WithAdded:
                     return self.model.mode_components(*self._split(theta, effects))
                 se_at.modes = modes_at
             return se_at
-        se = self.model.model_se(self.theta)
-        if not self.added:
-            return se
-        ex = self.model.resolution_se(self.added).reindex(se.index).fillna(0.0)
-        return np.sqrt(se ** 2 + ex ** 2)
-
-    def effect_se(self, effects):
-        on = dict(self.added)
-        on.update(effects or {})
-        full = self.model.resolution_se(on)
-        if not self.added:
-            return full
-        have = self.model.resolution_se(self.added)
-        return np.sqrt(np.maximum(full ** 2 - have ** 2, 0.0))
+        return self.model.model_se(self.theta)
 
 
 def fitted_parameters(model, theta, added):
@@ -386,7 +373,7 @@ def _null_draw(w, o, base_params, effs, alpha, noise_observables, conditions):
     d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(),
                  crn_correlation=getattr(w.model, "crn_correlation", 0.0),
                  conditions=conditions, alpha=alpha, noise_observables=noise_observables,
-                 effect_se=w.effect_se, structure=False)
+                 structure=False)
     t = d.table[d.table["identifiable"]]
     return (float(t["delta_chi2"].max()) if len(t) else 0.0), d.best is not None
 
@@ -441,9 +428,8 @@ class Selection:
 
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
                    noise_observables=None, log=print, null_draws=0, n_jobs=1):
-    """Forward selection of effects on a model with ``predict``, ``model_se``,
-    ``resolution_se``, ``base_params`` and ``effects`` (an :class:`OpenTwinModel` or any model
-    of that shape): diagnose, add the best significant effect (its strength joins the fitted
+    """Forward selection of effects on a model with ``predict``, ``model_se``, ``base_params``
+    and ``effects`` (:class:`analysis.emulated_twin.TwinModelContract`): diagnose, add the best significant effect (its strength joins the fitted
     parameters), diagnose the rest again, until nothing more is significant or ``max_effects``
     are in.
 
@@ -469,8 +455,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                         model_se=w.model_se(),
                         crn_correlation=getattr(model, "crn_correlation", 0.0),
                         conditions=conditions,
-                        alpha=alpha, noise_observables=noise_observables,
-                        effect_se=w.effect_se)
+                        alpha=alpha, noise_observables=noise_observables)
         t = diag.table.copy()
         t.insert(0, "step", step)
         t["threshold_scale"] = 1.0

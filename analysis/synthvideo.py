@@ -175,12 +175,6 @@ class BounceTrack:
         k = np.flatnonzero(sg[1:] != sg[:-1])
         return 0.5 * (t[k] + t[k + 1])
 
-    def true_f_col(self, t0=None, t1=None) -> float:
-        """End impacts per second over [t0, t1] [1/s] (every impact, reversing or not)."""
-        t0 = self.t0_s if t0 is None else t0
-        t1 = self.t1_s if t1 is None else t1
-        return len(self.impact_times(t0, t1)) / (t1 - t0)
-
     def sample(self, fps: float, t0=None, t1=None, frame: str = "lab") -> pd.DataFrame:
         """Track sampled at the camera rate: columns t_s, x_m, y_m, jar_x_m (x lab or jar frame)."""
         t0 = self.t0_s if t0 is None else t0

@@ -34,10 +34,9 @@ def declaration(name):
 
 
 #: keys of a declaration's optional "diagnose" entry: analysis.catalog.Candidate's fields
-#: (param, s_max, unit; coord, p0, levels, replicates, fixed optional) and the entry's place in
-#: the catalog ("order", "optional", "decoy")
-DIAGNOSE_KEYS = {"order", "param", "s_max", "unit", "coord", "p0", "levels", "replicates",
-                 "fixed", "optional", "decoy"}
+#: (param, s_max, unit; coord, p0, fixed optional) and the entry's place in the catalog
+#: ("order", "optional", "decoy")
+DIAGNOSE_KEYS = {"order", "param", "s_max", "unit", "coord", "p0", "fixed", "optional", "decoy"}
 
 
 def diagnose_entries():

@@ -22,8 +22,7 @@ DECLARATION = {
     # (in the strength coordinate, within the parameter's bounds) and the parameter's unit;
     # optional: "coord" 'linear' (strength = param, default), 'inv_square' (= (p0 / param)^2) or
     # 'square' (= (param / p0)^2), chosen so that the response is near linear in the strength,
-    # with "p0"; "levels" (signature strengths as fractions of s_max, default (0.5, 1.0)),
-    # "replicates" (seeds per level), "fixed" ({other parameter: value}); "optional": True to
+    # with "p0"; "fixed" ({other parameter: value}); "optional": True to
     # diagnose it only when asked for (loop --with-effect), "decoy": True for an effect too
     # small for the twin to see. "order" places it in the catalog (run ids, plots, tables): take
     # the next free multiple of 10 (python -c "import effects; print(effects.diagnose_entries())")

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.diagnose import (AddEffectResult, BaseParameter, Diagnosis, Effect, add_effect,
-                               diagnose, model_se_from_predictions, residual_structure)
+from analysis.diagnose import (BaseParameter, Diagnosis, Effect, Problem, diagnose,
+                               model_se_from_predictions, residual_structure)
 
 FREQS = [22.5, 25.0, 27.5, 30.0]
 DIAMS = [15.0, 17.5, 20.6]
@@ -178,27 +178,25 @@ def test_model_replicate_noise_is_needed():
     assert np.median(without) > 1.3
 
 
-def test_add_effect_staircase():
-    ok, stairs = [], []
+def test_the_effects_joint_fit_falls_to_the_noise():
+    """The staircase of one effect switched on (Problem: the model at the start, the base
+    parameters fitted, then base and strength fitted together): chi2 falls at each stage, the
+    joint fit is consistent with the noise and recovers the hidden strength."""
+    ok = []
     for e in CANDIDATES:
         for s in SEEDS:
             obs, predict, se = make({e: 1.0}, seed=300 + s)
-            a = add_effect(predict, obs, BASE, EFFECTS, e, model_se=se)
-            assert isinstance(a, AddEffectResult)
-            c = a.staircase.set_index("stage")["chi2_dof"]
-            assert list(a.staircase["stage"]) == ["baseline", "calibrated", "with %s" % e]
-            chi2 = a.staircase.set_index("stage")["chi2"]
-            assert chi2["baseline"] >= chi2["calibrated"] >= chi2["with %s" % e]
-            assert a.after.p_value > 1e-3      # after: consistent with noise
-            assert abs(a.strength - 1.0) < 4 * a.strength_se
-            ok.append(c.iloc[2] <= 1.5 and c.iloc[1] >= 3 * c.iloc[2])
-            stairs.append(c.to_numpy())
+            prob = Problem(predict, obs, BASE, EFFECTS, se, None, 1e-3, None)
+            theta0 = {p.name: p.value for p in BASE}
+            baseline, before = prob.stage(theta0), prob.fit(theta0)
+            after = prob.fit({k: before.params[k] for k in theta0}, effect=e,
+                             start_strength=0.5)
+            assert baseline.chi2 >= before.chi2 >= after.chi2
+            assert after.p_value > 1e-3      # after: consistent with noise
+            assert abs(after.params[e] - 1.0) < 4 * after.stderr[e]
+            ok.append(after.chi2_dof <= 1.5 and before.chi2_dof >= 3 * after.chi2_dof)
     # chi2_21 exceeds 1.5 * 21 with probability ~6 %: the criterion is noise-limited
     assert np.mean(ok) >= 0.9
-    frame = a.to_frame()
-    assert list(frame.columns) == ["model_calibrated", "z_calibrated", "model_with_effect",
-                                   "z_with_effect"]
-    assert "switched on" in a.summary()
 
 
 def test_missing_candidate_gives_structure_not_a_name():
@@ -255,8 +253,6 @@ def test_bad_inputs():
         diagnose(predict, obs.drop(columns="sd"), BASE, EFFECTS)
     with pytest.raises(TypeError):
         diagnose(lambda th, ef: predict(th, ef).to_numpy(), obs, BASE, EFFECTS)
-    with pytest.raises(ValueError, match="unknown effect"):
-        add_effect(predict, obs, BASE, EFFECTS, "gremlins", model_se=se)
 
 
 def test_the_retired_command_line_says_what_replaces_it():
@@ -322,52 +318,15 @@ def test_a_distant_minimum_of_the_strength_is_found():
     row = d.table.set_index("effect").loc["lumpy"]
     assert d.best == "lumpy"
     assert abs(row["strength"] - 0.85) < 0.02
-    a = add_effect(lumpy_toy, obs, BASE, effects, "lumpy")
-    assert abs(a.strength - 0.85) < 0.02
-    assert a.after.p_value > 1e-3
-    # without the scan the fit stops at the false minimum
-    import analysis.diagnose as dg
-    old = dg.SCAN_POINTS
-    try:
-        dg.SCAN_POINTS = 0
-        a0 = add_effect(lumpy_toy, obs, BASE, effects, "lumpy")
-    finally:
-        dg.SCAN_POINTS = old
-    assert a0.after.chi2 > a.after.chi2 + 25
-
-
-def test_effect_se_enters_sigma_and_the_likelihood_does_not_chase_it():
-    """A model uncertainty that depends on the strength (effect_se, e.g. a library's
-    interpolation error) widens sigma in the fits with the effect; the fit maximises the
-    likelihood, so a strength range where the model claims to know nothing (10 x sigma) is
-    not chosen for it (a chi2-only fit would prefer it: its speeds weigh 100 x less there)."""
-    obs, predict, se = make({"ball_spin": 0.5}, seed=21)
-    sig0 = np.hypot(obs["sd"].to_numpy(), se.to_numpy())
-
-    def vague(eff):
-        s = eff.get("ball_spin", 0.0)
-        return pd.Series(np.where(IS_V, 10.0 * sig0, 0.0) if s > 0.85 else 0.0 * sig0,
-                         index=IDX)
-
-    a = add_effect(predict, obs, BASE, EFFECTS, "ball_spin", model_se=se, effect_se=vague)
-    assert abs(a.strength - 0.5) < 4 * a.strength_se
-    assert a.after.penalty == 0.0
-    d = diagnose(predict, obs, BASE, EFFECTS, model_se=se, conditions=CONDS, effect_se=vague)
-    assert d.best == "ball_spin"
-    assert abs(d.table.set_index("effect").loc["ball_spin", "strength"] - 0.5) < 0.1
-
-    def wide(eff):                       # twice sigma on every speed wherever the effect is on
-        on = eff.get("ball_spin", 0.0) > 0
-        return pd.Series(np.where(IS_V & on, 2.0 * sig0, 0.0), index=IDX)
-
-    b = add_effect(predict, obs, BASE, EFFECTS, "ball_spin", model_se=se, effect_se=wide)
-    plain = add_effect(predict, obs, BASE, EFFECTS, "ball_spin", model_se=se)
-    n_v = int(IS_V.sum())
-    assert b.after.penalty == pytest.approx(n_v * np.log(5.0), rel=1e-6)
-    assert b.after.sigma[IS_V] == pytest.approx(np.sqrt(5.0) * sig0[IS_V])
-    assert b.after.chi2 < plain.after.chi2
-    # the stages without the effect keep the plain sigma
-    assert b.before.chi2 == pytest.approx(plain.before.chi2)
+    assert d.fits["lumpy"].p_value > 1e-3
+    # local fits alone (from mid-range and from near null) stop at a false minimum
+    prob = Problem(lumpy_toy, obs, BASE, effects, None, None, 1e-3, None)
+    theta0 = {p.name: p.value for p in BASE}
+    cal = prob.fit(theta0)
+    local = min((prob.fit({k: cal.params[k] for k in theta0}, effect="lumpy",
+                          start_strength=s0) for s0 in (0.5, 0.05)),
+                key=lambda f: f.objective)
+    assert local.chi2 > d.fits["lumpy"].chi2 + 25
 
 
 def curved_ridge():

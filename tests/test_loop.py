@@ -79,9 +79,6 @@ class ToyModel:
     def model_se(self, theta=None):
         return pd.Series(self.se, index=self.keys)
 
-    def resolution_se(self, effects):
-        return pd.Series(0.0, index=self.keys)
-
     def base_params(self):
         return [BaseParameter("a", 2.0, 1.0, 3.0), BaseParameter("b", 0.3, -1.0, 1.0)]
 
@@ -708,9 +705,6 @@ def _two_effect_model():
             return pd.Series(np.column_stack([v, f]).ravel(), index=keys)
 
         def model_se(self, theta=None):
-            return pd.Series(0.0, index=keys)
-
-        def resolution_se(self, effects):
             return pd.Series(0.0, index=keys)
 
     def data(effects):
