@@ -197,6 +197,12 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     page = (out / "report.md").read_text()
     assert page.startswith("# The loop on fk (SYNTHETIC)")
     assert "## Focus wave" in page and "| before the focus wave |" in page
+    # the rerun's round: the twin's chi2/dof, the emulator's check, the refit's lean
+    lean = info["reruns"][0]["lean"]
+    assert set(info["final_lean"]) == set(lean) and lean["share"] >= 0.0
+    reruns = page.split("## Twin reruns")[1].split("\n## ")[0]
+    row = [ln for ln in reruns.splitlines() if ln.startswith("| 1 | ")]
+    assert len(row) == 1 and "%.2f" % lean["share"] in row[0]
     assert info["focus"]["n_runs"] == 3 * 8 and set(info["focus"]) >= {"before", "after"}
     # a second run is all cached and replaces only its own folder (the design waves' runs:
     # without the focus wave and the rerun, whose points are the first run's fit's)

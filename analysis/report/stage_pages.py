@@ -179,6 +179,7 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                "| after it | %s | %s | %s |"
                % (", ".join(a["effects"]) or "none", _cell(a["chi2_dof"], "%.3g"),
                   _fmt_theta(a["point"]))]
+    md += _rerun_rows(i.get("reruns") or [])
     md += ["", "![ranking](ranking.png)", "",
            "Model: the emulator fitted to %d twin runs at the dataset's conditions (%d new this "
            "time; waves: %s), reference point %s; wall time %.0f s."
@@ -187,6 +188,36 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
     if fake:
         md += ["*%s.*" % FAKE_WORDS, ""]
     return "\n".join(md)
+
+
+def _rerun_rows(reruns) -> list:
+    """The twin reruns, one row a round: the twin's chi2/dof, the emulator's check of it, how
+    far the refit moved and how far it leans on the emulator's uncertainty (loop.json
+    ``reruns``)."""
+    if not reruns:
+        return []
+    md = ["", "## Twin reruns", "",
+          "Per round: the twin at the fitted point against the data; the emulator's prediction "
+          "there against the rerun's means before they joined it (p >= 0.01: within its stated "
+          "uncertainty); how far the refit with the rerun's runs moved the point; and how far "
+          "the refitted point leans on the emulator's uncertainty - its sd as a share of the "
+          "data's sd (largest over the observations) and the chi2/dof of its means with the "
+          "data's sd alone. A point is sure when the share is at most 0.5 or those means fit "
+          "(p >= alpha); one that is not, or a rerun the emulator missed, gets a focus wave "
+          "before the next round.", "",
+          "| round | twin rerun chi2/dof | emulator vs twin p | refit moved [se] | emulator sd / "
+          "data sd | chi2/dof at its means, data sd alone | sure | focus wave after |",
+          "|---|---|---|---|---|---|---|---|"]
+    for r in reruns:
+        ev, lean = r.get("emulator_vs_twin") or {}, r.get("lean") or {}
+        md.append("| %d | %s | %s | %s | %s | %s | %s | %s |" % (
+            r["round"], _cell(r["chi2"] / max(r["dof"], 1), "%.3g"),
+            _cell(ev.get("p"), "%.2g"), _cell(r.get("moved_se"), "%.2f"),
+            _cell(lean.get("share"), "%.2f"),
+            _cell(lean["chi2_data"] / max(lean["dof"], 1), "%.3g") if lean else "-",
+            "-" if not lean else ("yes" if lean["sure"] else "**no**"),
+            "%d runs" % r["focus"]["n_runs"] if r.get("focus") else "-"))
+    return md
 
 
 def _wave_counts(runs) -> str:
