@@ -1368,7 +1368,10 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
         parts.append("not constrained by the data: " + ", ".join(loose))
     if rr is not None:
         parts.append(rerun_words(rr, final, alpha, list(added)))
-    if lean is not None and not lean.sure:
+    # a final point that leans on the emulator's uncertainty, where no twin rerun confirms
+    # the fit (none made, or one that misfits): the verdict rests on the emulator's ignorance
+    confirmed = rr is not None and stats.chi2.sf(rr.chi2, max(rr.dof, 1)) >= alpha
+    if lean is not None and not lean.sure and not confirmed:
         parts.append("the final point leans on the emulator's uncertainty: %s - the data are "
                      "plausible there because the emulator does not know the twin yet, not "
                      "because the twin fits them; more runs there (--confirm-rounds) decide it"
