@@ -300,6 +300,10 @@ class Lean:
     dof: int
     p_data: float                    # its p-value (chi2 with dof)
     alpha: float                     # the level it is judged at
+    undecided: tuple = ()            # (observation, its z with the data's sd alone, its
+    #                                  share): history matching's undecided observations, off
+    #                                  by more than CUTOFF data sds where the emulator's sd is
+    #                                  above SURE_SHARE of the data's; largest |z| first
 
     @property
     def sure(self) -> bool:
@@ -309,12 +313,20 @@ class Lean:
 
     def record(self) -> dict:
         return {"share": self.share, "worst": self.worst, "chi2_data": self.chi2_data,
-                "dof": self.dof, "p_data": self.p_data, "sure": self.sure}
+                "dof": self.dof, "p_data": self.p_data, "sure": self.sure,
+                "undecided": [{"observation": o, "z_data": z, "share": q}
+                              for o, z, q in self.undecided]}
 
     def words(self) -> str:
-        return ("the emulator's sd there is %.2f of the data's (at %s); at its means with the "
-                "data's sd alone chi2/dof %.2f (p = %.2g)"
-                % (self.share, self.worst, self.chi2_data / max(self.dof, 1), self.p_data))
+        out = ("the emulator's sd there is %.2f of the data's (at %s); at its means with the "
+               "data's sd alone chi2/dof %.2f (p = %.2g)"
+               % (self.share, self.worst, self.chi2_data / max(self.dof, 1), self.p_data))
+        if self.undecided:
+            out += "; undecided: %s%s" % (", ".join(
+                "%s (its mean %.1f data sds off, the emulator's sd %.1f of the data's)"
+                % u for u in self.undecided[:3]),
+                " and %d more" % (len(self.undecided) - 3) if len(self.undecided) > 3 else "")
+        return out
 
 
 def lean_of(fit, obs, alpha) -> Lean:
@@ -334,9 +346,13 @@ def lean_of(fit, obs, alpha) -> Lean:
     chi2 = float(np.nansum(z ** 2))
     dof = max(int(np.isfinite(z).sum()) - len(fit.params), 1)
     i = share.idxmax() if len(share) else ("", "")
+    from analysis.history_matching import CUTOFF
+    off = (share > SURE_SHARE) & (z.abs() > CUTOFF)
+    undecided = tuple(("%s %s" % k, float(z[k]), float(share[k]))
+                      for k in z[off].abs().sort_values(ascending=False).index)
     return Lean(share=float(share.max()) if len(share) else 0.0, worst="%s %s" % i,
                 chi2_data=chi2, dof=dof, p_data=float(stats.chi2.sf(chi2, dof)),
-                alpha=float(alpha))
+                alpha=float(alpha), undecided=undecided)
 
 
 def rerun_score(obs, pred, se, final, n_params) -> RerunScore:

@@ -866,7 +866,12 @@ def test_lean_separates_the_emulators_ignorance_from_a_fit():
     assert lean_of(fit_with(em, np.full(4, 0.3)), obs, 0.01).sure
     known = lean_of(fit_with(em * SURE_SHARE / 2.0, np.array([4.0, 0.5, 0.2, 0.1])), obs, 0.01)
     assert known.share == pytest.approx(SURE_SHARE) and known.p_data < 0.01 and known.sure
-    assert set(lean.record()) == {"share", "worst", "chi2_data", "dof", "p_data", "sure"}
+    assert set(lean.record()) == {"share", "worst", "chi2_data", "dof", "p_data", "sure",
+                                  "undecided"}
+    # history matching's undecided observation: 4 data sds off where the emulator's sd is 2
+    assert lean.undecided == (("c1 v_mean_m_s", pytest.approx(4.0), pytest.approx(2.0)),)
+    assert "undecided: c1 v_mean_m_s (its mean 4.0 data sds off" in lean.words()
+    assert known.undecided == ()
 
 
 @pytest.mark.parametrize("v_rel_sd, leans", [(0.001, True), (0.02, False)])
