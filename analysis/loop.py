@@ -30,7 +30,7 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    points too), the emulator is refitted and the final fit redone on it; a final point that
    moves by more than :data:`CONFIRM_TOL_SE` standard errors gets its own rerun
    (``--confirm-rounds``), after a focus wave when the emulator missed the rerun or the
-   refitted point leans on its uncertainty (:func:`lean_of`, :data:`SURE_SHARE`).
+   refitted point leans on its uncertainty (:func:`lean_of`, :attr:`Lean.sure`).
 7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator.
 8. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
@@ -112,10 +112,9 @@ CONFIRM_TOL_SE = 0.5
 CONFIRM_SEED0 = 100
 #: seed of the focus wave's runs (the design's seed added)
 FOCUS_SEED0 = 50
-#: a fitted point is final only where the emulator knows the twin: its sd there at most this
-#: share of the data's at every observation, or the data fit its mean with their own sd alone
-#: (history matching's stop: the emulator's variance small beside the others', or not the
-#: reason the point is plausible); otherwise another focus wave and rerun refine it
+#: an observation is undecided (history matching) where the emulator's sd is above this share of
+#: the data's and the data are more than CUTOFF of their sds off its mean, but not of the
+#: combined sd: plausible only because the emulator does not know the twin there
 SURE_SHARE = 0.5
 
 
@@ -299,21 +298,23 @@ class Lean:
     chi2_data: float                 # chi2 at the fit's means with the data's sd alone
     dof: int
     p_data: float                    # its p-value (chi2 with dof)
+    p_fit: float                     # the fit's own p-value (the emulator's sd in sigma)
     alpha: float                     # the level it is judged at
     undecided: tuple = ()            # (observation, its z with the data's sd alone, its
-    #                                  share): history matching's undecided observations, off
-    #                                  by more than CUTOFF data sds where the emulator's sd is
-    #                                  above SURE_SHARE of the data's; largest |z| first
+    #                                  share): history matching's undecided observations
+    #                                  (SURE_SHARE), largest |z| first
 
     @property
     def sure(self) -> bool:
-        """The point may be final: the emulator's sd is small beside the data's, or the data
-        fit the emulator's means without it."""
-        return self.share <= SURE_SHARE or self.p_data >= self.alpha
+        """The point may be final: the emulator's uncertainty does not decide whether the data
+        fit there - they fit its means with their own sd alone, or they misfit even with it
+        (history matching's undecided point: plausible only with the emulator's variance)."""
+        return self.p_data >= self.alpha or self.p_fit < self.alpha
 
     def record(self) -> dict:
         return {"share": self.share, "worst": self.worst, "chi2_data": self.chi2_data,
-                "dof": self.dof, "p_data": self.p_data, "sure": self.sure,
+                "dof": self.dof, "p_data": self.p_data, "p_fit": self.p_fit,
+                "sure": self.sure,
                 "undecided": [{"observation": o, "z_data": z, "share": q}
                               for o, z, q in self.undecided]}
 
@@ -333,8 +334,9 @@ def lean_of(fit, obs, alpha) -> Lean:
     """How far ``fit`` (a FitResult scored with the emulator's sd in sigma) rests on the
     emulator's uncertainty at its point: per observation of ``obs`` the emulator's sd
     sqrt(sigma^2 - sd^2) against the data's sd, and the chi2 of the fit's means (each condition
-    in the motion mode it was scored in) with the data's sd alone. A point where the data are
-    plausible only because the emulator does not know the twin there is not yet a result."""
+    in the motion mode it was scored in) with the data's sd alone beside the fit's own. A point
+    where the data are plausible only because the emulator does not know the twin there (the
+    fit passes at ``alpha``, the data's sd alone does not) is not yet a result."""
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
     sd = pd.Series(obs["sd"].to_numpy(float), index=key).reindex(fit.prediction.index)
     sigma = (pd.Series(fit.sigma, index=fit.prediction.index) if fit.sigma is not None
@@ -347,12 +349,12 @@ def lean_of(fit, obs, alpha) -> Lean:
     dof = max(int(np.isfinite(z).sum()) - len(fit.params), 1)
     i = share.idxmax() if len(share) else ("", "")
     from analysis.history_matching import CUTOFF
-    off = (share > SURE_SHARE) & (z.abs() > CUTOFF)
+    off = (share > SURE_SHARE) & (z.abs() > CUTOFF) & ((z * sd / sigma).abs() <= CUTOFF)
     undecided = tuple(("%s %s" % k, float(z[k]), float(share[k]))
                       for k in z[off].abs().sort_values(ascending=False).index)
     return Lean(share=float(share.max()) if len(share) else 0.0, worst="%s %s" % i,
                 chi2_data=chi2, dof=dof, p_data=float(stats.chi2.sf(chi2, dof)),
-                alpha=float(alpha), undecided=undecided)
+                p_fit=float(fit.p_value), alpha=float(alpha), undecided=undecided)
 
 
 def rerun_score(obs, pred, se, final, n_params) -> RerunScore:
@@ -1656,9 +1658,9 @@ def _main(argv=None):
                     help="most twin reruns: after each the emulator is refitted with the "
                     "rerun's runs and the fit redone; a point that moves by more than %.1f se "
                     "gets the next, a rerun beyond the emulator's stated uncertainty or a point "
-                    "that leans on it (its sd above %.1f of the data's where they misfit its "
-                    "means) a focus wave first [rounds] (default %%(default)s)"
-                    % (CONFIRM_TOL_SE, SURE_SHARE))
+                    "that leans on it (the fit passes with the emulator's sd, its means with the "
+                    "data's sd alone do not) a focus wave first [rounds] (default %%(default)s)"
+                    % CONFIRM_TOL_SE)
     ap.add_argument("--no-intervals", action="store_true",
                     help="skip the profile-likelihood intervals (the se only)")
     ap.add_argument("--alpha", type=float, default=d.alpha,
