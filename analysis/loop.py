@@ -265,6 +265,11 @@ class RerunScore:
     def chi2_dof(self) -> float:
         return self.chi2 / max(self.dof, 1)
 
+    @property
+    def p_value(self) -> float:
+        """The data against the rerun's means: chi2 with ``dof`` (at least 1)."""
+        return float(stats.chi2.sf(self.chi2, max(self.dof, 1)))
+
 
 @dataclass
 class Rerun:
@@ -447,7 +452,8 @@ class Selection:
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
                    noise_observables=None, log=print, null_draws=0, n_jobs=1):
     """Forward selection of effects on a model with ``predict``, ``model_se``, ``base_params``
-    and ``effects`` (:class:`analysis.emulated_twin.TwinModelContract`): diagnose, add the best significant effect (its strength joins the fitted
+    and ``effects`` (:class:`analysis.emulated_twin.TwinModelContract`): diagnose, add the
+    best significant effect (its strength joins the fitted
     parameters), diagnose the rest again, until nothing more is significant or ``max_effects``
     are in.
 
@@ -924,7 +930,7 @@ def confirm_stage(state: LoopState, twin, log=print):
                                                   pred, s.rerun_replicates)
         state.stair.append({"stage": "twin rerun", "chi2": score.chi2, "dof": score.dof,
                             "chi2_dof": score.chi2_dof,
-                            "p_value": float(stats.chi2.sf(score.chi2, max(score.dof, 1))),
+                            "p_value": score.p_value,
                             "n_params": n_par})
         m.fit(pd.concat([m.runs_, runs], ignore_index=True))
         theta, added, refit, dropped = prune_effects(m, state.obs, state.theta, state.added,
@@ -1024,7 +1030,9 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     if rr is not None:
         comp["twin_rerun"] = rr.prediction.to_numpy(float)
         comp["z_twin_rerun"] = rr.z.to_numpy(float)
-    lean = lean_of(final, state.obs, state.settings.alpha)
+    # the last round's refit is the final fit: its lean is already measured
+    lean = (state.reruns[-1].lean if state.reruns and state.reruns[-1].lean is not None
+            else lean_of(final, state.obs, state.settings.alpha))
     status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
                                      dataset, model, state.settings.alpha, parameters,
                                      state.dropped, lean)
@@ -1250,7 +1258,7 @@ def rerun_words(rr, final, alpha=None, added=()):
     are then the emulator's answer, not the twin's."""
     out = ("the real twin rerun at the final parameters: chi2/dof %.2f, the emulator's there "
            "%.2f" % (rr.chi2_dof, final.chi2_dof))
-    p_rr = float(stats.chi2.sf(rr.chi2, max(rr.dof, 1)))
+    p_rr = rr.p_value
     if alpha is not None and p_rr < alpha <= final.p_value:
         out += (" - the twin does NOT confirm the fit (its rerun's p = %.2g)%s; more runs "
                 "where the fit lands decide it" % (
@@ -1388,7 +1396,7 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
         parts.append(rerun_words(rr, final, alpha, list(added)))
     # a final point that leans on the emulator's uncertainty, where no twin rerun confirms
     # the fit (none made, or one that misfits): the verdict rests on the emulator's ignorance
-    confirmed = rr is not None and stats.chi2.sf(rr.chi2, max(rr.dof, 1)) >= alpha
+    confirmed = rr is not None and rr.p_value >= alpha
     if lean is not None and not lean.sure and not confirmed:
         parts.append("the final point leans on the emulator's uncertainty: %s - the data are "
                      "plausible there because the emulator does not know the twin yet, not "
