@@ -20,7 +20,7 @@ help:
 	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset -> OUT/report.md, diagnosis.csv, staircase.csv, loop.json"
 	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
 	@echo "make open-world - the blind suite (20 no-effect, 12 one-, 6 two-effect, 10 measurement-chain datasets) and the loop on each at wave 0 from the run table (about 2 h on 1 core) -> results/open_world/{nulls,effects,pairs,chain}/, loop/README.md"
-	@echo "make open-world-full [ONLY=\"null_p07 eff_p01\"] - the same datasets through the whole loop but its reruns (refinement and focus waves; 20-30 min a dataset on 1 worker, resumable) -> results/open_world/full_loop/"
+	@echo "make open-world-full [ONLY=\"null_p07 eff_p01\"] - the same datasets through the whole loop (refinement and focus waves, twin reruns; 20-45 min a dataset on 1 worker, resumable) -> results/open_world/full_loop/"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
 	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 1 h on 1 worker; cached, resumable; the committed run table holds their summaries) -> results/studies/vf_trend/"
@@ -122,12 +122,12 @@ open-world: setup
 	$(OWD) --out results/open_world/chain --chain 10
 	$(VPY) -m analysis.open_suite --waves 0 --focus-points 0 --no-rerun $(CHAIN)
 
-# the same datasets through the whole loop but its reruns (the refinement waves and the focus
-# wave: 100-150 new twin runs a dataset, 20-30 min each on 1 worker; resumable, a dataset whose
-# loop.json exists is kept; ONLY="null_p07 eff_p01" runs those): results/open_world/full_loop/,
-# partial until all 48 ran (its NOTES.md says which)
+# the same datasets through the whole loop (the refinement waves, the focus wave and the twin
+# reruns with their confirmation rounds: 120-260 new twin runs a dataset, 20-45 min each on 1
+# worker; resumable, a dataset whose loop.json exists is kept; ONLY="null_p07 eff_p01" runs
+# those): results/open_world/full_loop/, partial until all 48 ran (its NOTES.md says which)
 open-world-full: setup
-	$(VPY) -m analysis.open_suite --out results/open_world/full_loop --no-rerun --workers 1 \
+	$(VPY) -m analysis.open_suite --out results/open_world/full_loop --workers 1 \
 	  $(CHAIN) $(foreach n,$(ONLY),--only $(n))
 
 # the one emulator of the twin (analysis/emulator.py) against real twin runs: wave 0 of the
