@@ -338,6 +338,17 @@ def prefetcher(predict):
     return f
 
 
+#: the global search of a fit (:meth:`Problem.global_starts`): Sobol points over the base
+#: parameters and the effect's range, and how many of the lowest -2 log L start a local fit
+GLOBAL_POINTS = 256
+GLOBAL_STARTS = 3
+#: the global starts lie at least this far apart (largest difference of any parameter, in units
+#: of its range): the best points of a sample crowd into one minimum
+GLOBAL_APART = 0.2
+#: a global start this close (largest difference of any parameter, in units of its range) to
+#: a point already fitted is not fitted again
+GLOBAL_SAME_BASIN = 0.1
+
 #: a motion mode whose probability at a condition is below exp(this) is not scored there
 LOG_P_NEGLIGIBLE = -20.0
 
@@ -743,6 +754,69 @@ class Problem:
                          sigma=sigma, penalty=penalty, chol=self.chol(eff, theta),
                          mode=self.modes_at(eff, theta))
 
+    def global_starts(self, theta, effect=None, n_points=None, n_best=None, seed=0) -> list:
+        """(theta, effects) starting points of a fit that do not depend on where the last fit
+        sat: the ``n_best`` of lowest -2 log L among ``n_points`` Sobol points over the base
+        parameters' bounds and ``effect``'s range (the kinetics line's parameters, linear and
+        fitted from any start, held at ``theta``), each :data:`GLOBAL_APART` from the better
+        ones. The likelihood on an emulator has several minima (an effect that a shifted stroke
+        and friction half mimic), and a local fit from the calibrated point finds the nearest."""
+        from scipy.stats import qmc
+        from analysis.parameter_space import KINETICS_LINE
+        free = [p for p in self.base if p.name not in KINETICS_LINE]
+        lo = [p.lower for p in free]
+        hi = [p.upper for p in free]
+        if effect is not None:
+            lo.append(self.effects[effect].lower)
+            hi.append(self.effects[effect].upper)
+        if not lo:
+            return []
+        n_points = GLOBAL_POINTS if n_points is None else int(n_points)
+        n_best = GLOBAL_STARTS if n_best is None else int(n_best)
+        u = qmc.Sobol(len(lo), rng=np.random.default_rng(seed)).random(n_points)
+        x = np.asarray(lo) + u * (np.asarray(hi) - np.asarray(lo))
+        pts = [({**theta, **{p.name: float(r[i]) for i, p in enumerate(free)}},
+                {} if effect is None else {effect: float(r[-1])}) for r in x]
+        self.prefetch(pts)
+        obj = [self.objective_at(t, e) for t, e in pts]
+        picked = []
+        for i in np.argsort(obj):
+            if all(np.max(np.abs(u[i] - u[j])) >= GLOBAL_APART for j in picked):
+                picked.append(i)
+            if len(picked) == n_best:
+                break
+        return [pts[i] for i in picked]
+
+    def objective_at(self, theta, eff) -> float:
+        """-2 log L (chi2 + penalty, as :attr:`FitResult.objective`) at a point, no fit."""
+        w = self.white(self.y - self.mu(theta, eff), eff, theta)
+        return float(np.sum(w ** 2)) + (self.penalty(eff, theta) if self.varying_sigma else 0.0)
+
+    def best_fit(self, theta, effect=None, start_strength=None) -> FitResult:
+        """The best of the fit from ``theta`` (and ``start_strength``) and the fits from
+        :meth:`global_starts`."""
+        fit = self.fit(theta, effect=effect, start_strength=start_strength)
+        seen = [self._unit(fit.params, fit.params, effect)]
+        for t, e in self.global_starts(theta, effect):
+            u = self._unit(t, e, effect)
+            if min(np.max(np.abs(u - v)) for v in seen) < GLOBAL_SAME_BASIN:
+                continue                  # next to a point already fitted: the same minimum
+            f = self.fit(t, effect=effect, start_strength=e.get(effect))
+            seen += [u, self._unit(f.params, f.params, effect)]
+            if f.objective < fit.objective:
+                fit = f
+        return fit
+
+    def _unit(self, theta, eff, effect):
+        """The base parameters but the kinetics line's (and ``effect``'s strength) of a point on
+        their unit ranges."""
+        from analysis.parameter_space import KINETICS_LINE
+        ps = [(theta[p.name], p.lower, p.upper) for p in self.base if p.name not in KINETICS_LINE]
+        if effect is not None:
+            e = self.effects[effect]
+            ps.append((eff[effect], e.lower, e.upper))
+        return np.array([(x - lo) / (hi - lo) for x, lo, hi in ps], float)
+
     def stage(self, theta, eff=None) -> FitResult:
         """Model at fixed parameters (no fit): a FitResult with dof = n."""
         mu = self.mu(theta, eff or {})
@@ -865,7 +939,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
                     base_step_frac, conditions)
     theta0 = {p.name: p.value for p in prob.base}
     baseline = prob.stage(theta0)
-    cal = prob.fit(theta0)
+    cal = prob.best_fit(theta0)
     theta_c = {k: cal.params[k] for k in theta0}
     r = cal.whitened                         # measured - model, whitened
     J = cal.jac.to_numpy()
@@ -916,7 +990,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         if (s_lin - e.null) * travel < 0 and e.null_on_bound:
             score = 0.0
         start = float(np.clip(s_lin, e.lower, e.upper))
-        fit = prob.fit(theta_c, effect=name, start_strength=start)
+        fit = prob.best_fit(theta_c, effect=name, start_strength=start)
         # also start from null and from the best points of a scan over the strength's range
         # (a library-interpolated response can have several minima); keep the best optimum
         if start != e.null:
@@ -1139,7 +1213,7 @@ def calibrate_base(predict, observations, base_params, *, model_se=None,
     prob = Problem(predict, observations, base_params, [], model_se, fixed_effects,
                     base_step_frac, None)
     theta0 = {p.name: p.value for p in prob.base}
-    return prob.stage(theta0), prob.fit(theta0)
+    return prob.stage(theta0), prob.best_fit(theta0)
 
 
 #: a profile interval's end is found to this fraction of its bracketing step (the fit's se, at

@@ -329,6 +329,38 @@ def test_a_distant_minimum_of_the_strength_is_found():
     assert local.chi2 > d.fits["lumpy"].chi2 + 25
 
 
+def _two_basins():
+    """A Problem whose likelihood has a false minimum that a local fit from the start walks
+    into: y = sin(6 (a + s)) + s x + a x^2 / 2, the truth a = 0.15, s = 0.7 (s trades with
+    a through the sine: a fit from a small s ends at a = 0, s = 0.71)."""
+    x = np.linspace(0.0, 1.0, 8)
+    keys = pd.MultiIndex.from_tuples([("c%d" % i, "y") for i in range(len(x))],
+                                     names=["condition_id", "observable"])
+
+    def predict(theta, eff=None):
+        a, s = theta["a"], (eff or {}).get("s", 0.0)
+        return pd.Series(np.sin(6.0 * (a + s)) + s * x + 0.5 * a * x ** 2, index=keys)
+    y = predict({"a": 0.15}, {"s": 0.7}).to_numpy()
+    obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
+                        "value": y, "sd": 0.01})
+    return Problem(predict, obs, [BaseParameter("a", 0.5, 0.0, 1.0)], [Effect("s", 0.0, 1.0)],
+                   None, None, 1e-3, None)
+
+
+def test_the_global_search_leaves_a_false_minimum():
+    prob = _two_basins()
+    local = prob.fit({"a": 0.65}, effect="s", start_strength=0.05)
+    assert local.objective > 30 and local.params["a"] < 0.01      # the false minimum
+    best = prob.best_fit({"a": 0.65}, effect="s", start_strength=0.05)
+    assert abs(best.params["a"] - 0.15) < 1e-3 and abs(best.params["s"] - 0.7) < 1e-3
+    assert best.objective < 1e-3
+    # its starts: distinct points of the lowest -2 log L, the kinetics line's held
+    starts = prob.global_starts({"a": 0.65}, "s")
+    u = np.array([[t["a"], e["s"]] for t, e in starts])
+    assert len(starts) == 3
+    assert all(np.max(np.abs(u[i] - u[j])) >= 0.2 for i in range(3) for j in range(i))
+
+
 def curved_ridge():
     """(x, keys, predict) of an analytic model with a curved ridge: the strength s trades with
     the base parameter a through a product."""
