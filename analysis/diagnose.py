@@ -340,7 +340,7 @@ def prefetcher(predict):
 
 #: the global search of a fit (:meth:`Problem.global_starts`): Sobol points over the base
 #: parameters and the effect's range, and how many of the lowest -2 log L start a local fit
-GLOBAL_POINTS = 256
+GLOBAL_POINTS = 128
 GLOBAL_STARTS = 3
 #: the global starts lie at least this far apart (largest difference of any parameter, in units
 #: of its range): the best points of a sample crowd into one minimum
