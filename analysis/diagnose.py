@@ -762,19 +762,13 @@ class Problem:
         ones. The likelihood on an emulator has several minima (an effect that a shifted stroke
         and friction half mimic), and a local fit from the calibrated point finds the nearest."""
         from scipy.stats import qmc
-        from analysis.parameter_space import KINETICS_LINE
-        free = [p for p in self.base if p.name not in KINETICS_LINE]
-        lo = [p.lower for p in free]
-        hi = [p.upper for p in free]
-        if effect is not None:
-            lo.append(self.effects[effect].lower)
-            hi.append(self.effects[effect].upper)
-        if not lo:
+        free, lo, hi = self._searched(effect)
+        if not len(lo):
             return []
         n_points = GLOBAL_POINTS if n_points is None else int(n_points)
         n_best = GLOBAL_STARTS if n_best is None else int(n_best)
         u = qmc.Sobol(len(lo), rng=np.random.default_rng(seed)).random(n_points)
-        x = np.asarray(lo) + u * (np.asarray(hi) - np.asarray(lo))
+        x = lo + u * (hi - lo)
         pts = [({**theta, **{p.name: float(r[i]) for i, p in enumerate(free)}},
                 {} if effect is None else {effect: float(r[-1])}) for r in x]
         self.prefetch(pts)
@@ -807,15 +801,22 @@ class Problem:
                 fit = f
         return fit
 
-    def _unit(self, theta, eff, effect):
-        """The base parameters but the kinetics line's (and ``effect``'s strength) of a point on
-        their unit ranges."""
+    def _searched(self, effect):
+        """What the global search spans: the base parameters but the kinetics line's, and the
+        bounds of those and of ``effect``'s strength (arrays)."""
         from analysis.parameter_space import KINETICS_LINE
-        ps = [(theta[p.name], p.lower, p.upper) for p in self.base if p.name not in KINETICS_LINE]
+        free = [p for p in self.base if p.name not in KINETICS_LINE]
+        ranges = [(p.lower, p.upper) for p in free]
         if effect is not None:
-            e = self.effects[effect]
-            ps.append((eff[effect], e.lower, e.upper))
-        return np.array([(x - lo) / (hi - lo) for x, lo, hi in ps], float)
+            ranges.append((self.effects[effect].lower, self.effects[effect].upper))
+        lo, hi = (np.array(v, float) for v in zip(*ranges)) if ranges else (np.zeros(0),) * 2
+        return free, lo, hi
+
+    def _unit(self, theta, eff, effect):
+        """A point's searched coordinates (:meth:`_searched`) on their unit ranges."""
+        free, lo, hi = self._searched(effect)
+        x = [theta[p.name] for p in free] + ([eff[effect]] if effect is not None else [])
+        return (np.array(x, float) - lo) / (hi - lo)
 
     def stage(self, theta, eff=None) -> FitResult:
         """Model at fixed parameters (no fit): a FitResult with dof = n."""
