@@ -1246,11 +1246,17 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     """The ``level`` profile-likelihood interval of parameter ``name`` of ``fit``.
 
     The other parameters of ``base_params`` are refitted with ``name`` held at each trial
-    value; the interval is where -2 log L (the fit's objective, with the log-sigma term when
-    sigma moves) rises by less than the chi-square(1) quantile above its minimum - the
-    interval of Wilks' theorem, which follows the likelihood along a curved ridge where the
-    curvature at the optimum (``fit.stderr``) does not. Each end is bracketed outwards in steps
-    of the fit's standard error (at least 1 % of the range) and found by bisection.
+    value (by the fit's objective); the interval is where the misfit - chi2 in the metric of
+    the data's sd and the model's uncertainty, and the motion modes' rows - rises by less than
+    the chi-square(1) quantile above its value at the fit - the interval of Wilks' theorem,
+    which follows the likelihood along a curved ridge where the curvature at the optimum
+    (``fit.stderr``) does not. The log-determinant of the model's own uncertainty (what
+    ``fit.penalty`` adds to chi2) is left out of the rise: an emulator refined where the fits
+    lay is surest there, and that term would rule a value out for the runs not made near it
+    (a value the model cannot tell from the fit stays in the interval; a model_se that is
+    the model's uncertainty about its mean, not a scatter of the data). Each end is bracketed
+    outwards in steps of the fit's standard error (at least 1 % of the range) and found by
+    bisection.
     """
     bp = {p.name: p for p in base_params}
     if name not in bp:
@@ -1267,7 +1273,7 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
 
     batch = prefetcher(predict)
 
-    def rise(x):
+    def misfit(x):
         def pred(theta, effects=None):
             return predict(dict(theta, **{name: float(x)}), effects)
         if batch is not None:
@@ -1291,7 +1297,12 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
             prob = Problem(pred, observations, starts, [], ms, None, base_step_frac, None)
             f = prob.fit({q.name: q.value for q in starts})
             start.update({q.name: f.params[q.name] for q in starts})
-        return f.objective - fit.objective - thr
+        return f.chi2 + float(np.sum(prob.mode_rows({}, f.params) ** 2))
+
+    ref = misfit(x_hat)
+
+    def rise(x):
+        return misfit(x) - ref - thr
 
     se = float(fit.stderr.get(name, np.nan))
     step = max(se if np.isfinite(se) and se > 0 else 0.0, 0.01 * (p0.upper - p0.lower))
