@@ -20,7 +20,7 @@ help:
 	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset -> OUT/report.md, diagnosis.csv, staircase.csv, loop.json"
 	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
 	@echo "make open-world - the blind suite (20 no-effect, 12 one-, 6 two-effect, 10 measurement-chain datasets) and the loop on each at wave 0 from the run table (about 2 h on 1 core) -> results/open_world/{nulls,effects,pairs,chain}/, loop/README.md"
-	@echo "make open-world-full [ONLY=\"null_p07 eff_p01\"] - the same datasets through the whole loop (refinement and focus waves, twin reruns; 20-45 min a dataset on 1 worker, resumable) -> results/open_world/full_loop/"
+	@echo "make open-world-full [ONLY=\"null_p07 eff_p01\"] - the same datasets through the whole loop (refinement and focus waves, twin reruns; about 2 h a dataset on 1 worker: 120-260 new twin runs and 30 min of analysis; resumable) -> results/open_world/full_loop/"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
 	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 1 h on 1 worker; cached, resumable; the committed run table holds their summaries) -> results/studies/vf_trend/"
@@ -123,8 +123,8 @@ open-world: setup
 	$(VPY) -m analysis.open_suite --waves 0 --focus-points 0 --no-rerun $(CHAIN)
 
 # the same datasets through the whole loop (the refinement waves, the focus wave and the twin
-# reruns with their confirmation rounds: 120-260 new twin runs a dataset, 20-45 min each on 1
-# worker; resumable, a dataset whose loop.json exists is kept; ONLY="null_p07 eff_p01" runs
+# reruns with their confirmation rounds: 120-260 new twin runs a dataset, about 25 s each on 1
+# worker, and 30 min of analysis (eff_p01 from the cache, 2026-12-05); resumable, a dataset whose loop.json exists is kept; ONLY="null_p07 eff_p01" runs
 # those): results/open_world/full_loop/, partial until all 48 ran (its NOTES.md says which)
 open-world-full: setup
 	$(VPY) -m analysis.open_suite --out results/open_world/full_loop --workers 1 \

@@ -58,14 +58,16 @@ FOLDER_INDEX = {
     "loop": ("the loop on a dataset, one folder per dataset (report.md, the tables, figures)",
              "`analysis.loop` (make loop)"),
     "open_world": ("the loop on blind open-world datasets whose truth is known (loop: wave 0 "
-                   "on all 48, made before the fits' global starts of 2026-12-05; full_loop: "
-                   "the whole loop with its twin reruns, partial), and the datasets",
+                   "on all 48, made before the fits' global starts and the misfit intervals "
+                   "of 2026-12-05; full_loop: the whole loop with its twin reruns, partial), "
+                   "and the datasets",
                    "`analysis.open_suite` (make open-world, make open-world-full)"),
     "table3_chain": ("the loop on Table 3 with the measurement chain among its candidates, "
                      "one folder per assumed v sd (sd0.005, sd0.01, sd0.02); made before the "
-                     "fits' global starts of 2026-12-05",
+                     "fits' global starts and the misfit intervals of 2026-12-05",
                      "`analysis.loop` (make table3-chain)"),
-    "bench": ("timings: the loop from an empty cache, the scene's profile",
+    "bench": ("timings: the loop from an empty cache (loop_cold.txt made on 2026-12-01, on "
+              "the model the emulator replaced), the scene's profile",
               "`analysis.bench.loop_cold` (make bench-loop), `analysis.bench.profile` "
               "(make bench-profile)"),
 }
