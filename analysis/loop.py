@@ -31,7 +31,9 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    moves by more than :data:`CONFIRM_TOL_SE` standard errors gets its own rerun
    (``--confirm-rounds``), after a focus wave when the emulator missed the rerun or the
    refitted point leans on its uncertainty (:func:`lean_of`, :attr:`Lean.sure`).
-7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator.
+7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator,
+   bounded by the misfit's rise (:func:`analysis.diagnose.profile_interval`: the emulator's
+   own log-determinant left out, so no value is ruled out for the runs not made near it).
 8. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
    ========================  ==================================================================
