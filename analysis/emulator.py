@@ -362,15 +362,8 @@ class GPEmulator(_UnitCube):
             y_sd = float(np.atleast_1d(gp._y_train_std)[0])
             mean[:, j] = (Kt @ gp.alpha_) * y_sd + float(np.atleast_1d(gp._y_train_mean)[0])
             var[:, j] = np.maximum(smooth.diag(Xs) - np.einsum("ij,ij->j", V, V), 0.0) * y_sd ** 2
-            for b in range(0 if corr is None else n // block):
-                rows = slice(b * block, (b + 1) * block)
-                c = smooth(Xs[rows]) - V[:, rows].T @ V[:, rows]
-                d = np.sqrt(np.maximum(np.diag(c), 0.0))
-                ok = d > 1e-12 * max(float(d.max()), 1e-300)
-                r = np.eye(block)
-                r[np.ix_(ok, ok)] = np.clip(c[np.ix_(ok, ok)] / np.outer(d[ok], d[ok]), -1, 1)
-                np.fill_diagonal(r, 1.0)
-                corr[b, j] = r
+            if corr is not None:
+                corr[:, j] = _block_corr(smooth, Xs, V, block)
         nugget = self.nugget_var_[None, :]
         chaos = nugget if self.chaos_var_ is None else self._chaos_var(Xr) + nugget
         return mean, var, np.broadcast_to(chaos, var.shape).copy(), corr
@@ -534,6 +527,36 @@ class ModeClassifier(_UnitCube):
         p = self.gpc_.predict_proba(Xs)
         order = [list(self.gpc_.classes_).index(k) for k in self.modes_]
         return p[:, order]
+
+
+#: rows of one call of the kernel in :func:`_block_corr` (its square is the memory it takes)
+_BLOCK_CHUNK_ROWS = 512
+
+
+def _block_corr(smooth, Xs, V, block) -> np.ndarray:
+    """(n // block, block, block) correlations of the GP's latent posterior within each block
+    of ``block`` consecutive rows: the prior covariance ``smooth`` (the fitted kernel without
+    its white term) less V^T V (V = L^-1 K(train, X)). A row whose posterior sd is ~0 (a
+    training input) is uncorrelated. The kernel is called on chunks of whole blocks, its
+    diagonal blocks kept."""
+    nb = len(Xs) // block
+    out = np.empty((nb, block, block))
+    per = max(1, _BLOCK_CHUNK_ROWS // block)
+    idx = np.arange(block)
+    for b0 in range(0, nb, per):
+        k = min(per, nb - b0)
+        rows = slice(b0 * block, (b0 + k) * block)
+        K = smooth(Xs[rows]).reshape(k, block, k, block)[np.arange(k), :, np.arange(k), :]
+        Vb = V[:, rows].reshape(len(V), k, block)
+        c = K - np.einsum("tki,tkj->kij", Vb, Vb)
+        d = np.sqrt(np.maximum(c[:, idx, idx], 0.0))
+        ok = d > 1e-12 * np.maximum(d.max(axis=1, keepdims=True), 1e-300)
+        both = ok[:, :, None] & ok[:, None, :]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.where(both, np.clip(c / (d[:, :, None] * d[:, None, :]), -1, 1), 0.0)
+        r[:, idx, idx] = 1.0
+        out[b0:b0 + k] = r
+    return out
 
 
 def mix_modes(parts, probs, block=None) -> Prediction:

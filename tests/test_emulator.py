@@ -400,3 +400,28 @@ def test_mix_modes_has_the_moments_of_the_mixture():
     one = mix_modes(parts[:1], np.ones((2, 1)), block=2)
     assert np.allclose(one.mean, m[0]) and np.allclose(one.latent_sd, lat[0])
     assert np.allclose(one.chaos_sd, ch[0]) and np.allclose(one.latent_corr, corr[0])
+
+
+def test_block_correlations_are_the_gps_posterior_covariance():
+    """predict_parts(X, block): each block's latent correlations are sklearn's own posterior
+    covariance (GaussianProcessRegressor.predict(return_cov=True), normalised, its white term
+    taken off the diagonal) scaled to unit diagonal - for blocks that span the kernel's
+    chunks (200 blocks of 6 rows, 85 blocks a chunk)."""
+    rng = np.random.default_rng(0)
+    b = {"a": (0.0, 1.0), "b": (0.0, 2.0), "c": (-1.0, 1.0)}
+    lo = np.array([0.0, 0.0, -1.0])
+    span = np.array([1.0, 2.0, 2.0])
+    X = pd.DataFrame(lo + rng.uniform(size=(60, 3)) * span, columns=list("abc"))
+    y = np.sin(3 * X.a) + X.b ** 2 - X.c + 0.01 * rng.standard_normal(60)
+    em = GPEmulator(b, outputs=("y",), trend=True, random_state=0).fit(
+        X, pd.DataFrame({"y": y}))
+    Xt = pd.DataFrame(lo + rng.uniform(size=(1200, 3)) * span, columns=list("abc"))
+    p = em.predict_parts(Xt, block=6)
+    gp = em.gps_[0]
+    Xs = em._scale(em._raw_inputs(Xt))
+    for k in (0, 84, 85, 199):
+        _, C = gp.predict(Xs[6 * k:6 * k + 6], return_cov=True)
+        C = C / gp._y_train_std ** 2 - np.eye(6) * gp.kernel_.k2.noise_level
+        d = np.sqrt(np.diag(C))
+        assert np.allclose(p.latent_corr[k, 0], C / np.outer(d, d), atol=1e-9)
+        assert np.allclose(p.latent_sd[6 * k:6 * k + 6, 0], d * gp._y_train_std, rtol=1e-6)
