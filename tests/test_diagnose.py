@@ -374,6 +374,19 @@ def curved_ridge():
     return x, keys, predict
 
 
+def ridge_draw_interval(predict, keys, truth, scatter, sd, rng, s_start, model_se=None):
+    """One noise draw about ``predict(truth)`` (sd ``scatter``, the data's stated sd ``sd``),
+    calibrated from a = 0.8 and ``s_start``: (observations, fit, the 95 % profile interval
+    of s)."""
+    from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
+    obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
+                        "value": predict(truth).to_numpy()
+                        + scatter * rng.standard_normal(len(keys)), "sd": sd})
+    base = [BaseParameter("a", 0.8, 0.2, 3.0), BaseParameter("s", s_start, 0.0, 3.0)]
+    _, fit = calibrate_base(predict, obs, base, model_se=model_se)
+    return obs, fit, profile_interval(predict, obs, base, "s", fit, model_se=model_se)
+
+
 def test_profile_interval_covers_the_truth_as_often_as_it_claims():
     """A curved ridge (the strength trades with a base parameter through a product) on an
     analytic model with known truth: over 80 noise draws the 95 % profile interval of the
@@ -408,7 +421,7 @@ def test_fits_with_a_state_dependent_model_se_share_one_likelihood():
     is real (the data's scatter is sd^2 + model_se(truth)^2). Calibrations started from two
     points reach one optimum with one objective; the profile at the fit's own value does not
     rise; over 60 draws the 95 % profile interval covers the truth 85-99 % of the time."""
-    from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
+    from analysis.diagnose import BaseParameter, calibrate_base
     x, keys, predict = curved_ridge()
 
     def model_se(theta, effects=None):
@@ -420,12 +433,8 @@ def test_fits_with_a_state_dependent_model_se_share_one_likelihood():
     rng = np.random.default_rng(11)
     hits, n = 0, 60
     for k in range(n):
-        obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
-                            "value": predict(truth).to_numpy()
-                            + scatter * rng.standard_normal(len(x)), "sd": sd})
-        base = [BaseParameter("a", 0.8, 0.2, 3.0), BaseParameter("s", 0.3, 0.0, 3.0)]
-        _, fit = calibrate_base(predict, obs, base, model_se=model_se)
-        iv = profile_interval(predict, obs, base, "s", fit, model_se=model_se)
+        obs, fit, iv = ridge_draw_interval(predict, keys, truth, scatter, sd, rng, 0.3,
+                                           model_se)
         hits += iv.lower <= truth["s"] <= iv.upper
         if k == 0:
             other = [BaseParameter("a", 1.5, 0.2, 3.0), BaseParameter("s", 1.5, 0.0, 3.0)]
@@ -445,7 +454,6 @@ def test_an_interval_does_not_rule_out_a_value_for_the_runs_not_made_near_it():
     share of it: sum log sigma^2; with it in the rise the truth was outside 20 of 20 draws'
     intervals); the 95 % profile interval leaves that term out of its rise and covers the
     truth in >= 95 % of 40 draws, holds the fit and stays inside (0.3, 1.2)."""
-    from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
     x, keys, predict = curved_ridge()
     truth, sd, far = {"a": 1.0, "s": 0.6}, 0.01, 0.05
 
@@ -455,12 +463,7 @@ def test_an_interval_does_not_rule_out_a_value_for_the_runs_not_made_near_it():
     rng = np.random.default_rng(17)
     hits, pulled, n = 0, 0, 40
     for _ in range(n):
-        obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
-                            "value": predict(truth).to_numpy()
-                            + sd * rng.standard_normal(len(x)), "sd": sd})
-        base = [BaseParameter("a", 0.8, 0.2, 3.0), BaseParameter("s", 0.7, 0.0, 3.0)]
-        _, fit = calibrate_base(predict, obs, base, model_se=model_se)
-        iv = profile_interval(predict, obs, base, "s", fit, model_se=model_se)
+        _, fit, iv = ridge_draw_interval(predict, keys, truth, sd, sd, rng, 0.7, model_se)
         pulled += abs(fit.params["s"] - 0.7) < abs(fit.params["s"] - truth["s"])
         hits += iv.lower <= truth["s"] <= iv.upper
         assert iv.lower <= fit.params["s"] <= iv.upper
