@@ -1252,9 +1252,9 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     which follows the likelihood along a curved ridge where the curvature at the optimum
     (``fit.stderr``) does not. The log-determinant of the model's own uncertainty (what
     ``fit.penalty`` adds to chi2) is left out of the rise: an emulator refined where the fits
-    lay is surest there, and that term would rule a value out for the runs not made near it
-    (a value the model cannot tell from the fit stays in the interval; a model_se that is
-    the model's uncertainty about its mean, not a scatter of the data). Each end is bracketed
+    lay is surest there, and that term would rule a value out for the runs not made near it:
+    a value the model cannot tell from the fit stays in the interval (model_se is read as the
+    model's uncertainty about its mean, not as a scatter of the data). Each end is bracketed
     outwards in steps of the fit's standard error (at least 1 % of the range) and found by
     bisection.
     """
