@@ -422,8 +422,9 @@ def goal_lines(summ) -> list:
     L.append("one effect hidden that explains a noise-free chi2 >= %g (%d of %d) "
              "-> named first and significant: %d / %d (goal >= 90 %%); no other significant "
              "beside it: %d / %d (goal >= 80 %%)"
-             % (DETECTABLE_CHI2, len(det), len(one), det["first_named"].sum() if "first_named" in det
-                else det["all_named"].sum(), len(det),
+             % (DETECTABLE_CHI2, len(det), len(one),
+                det["first_named"].sum() if "first_named" in det else det["all_named"].sum(),
+                len(det),
                 (det["all_named"] & det["no_other"]).sum(), len(det)))
     if "chain_in_catalog" in summ and summ["chain_in_catalog"].astype(bool).any():
         ch = summ[summ["chain_hidden"].astype(bool)]
@@ -532,7 +533,8 @@ def main(argv=None):
     notes = out / NOTES
     with atomic_file(out / "README.md") as tmp:
         tmp.write_text(open_suite_page(summ, lines, rel, FIGURE if len(summ) else None,
-                                       notes.read_text() if notes.is_file() else ""))
+                                       notes.read_text() if notes.is_file() else "",
+                                       detectable_chi2=DETECTABLE_CHI2))
     print("\n".join(lines))
     return 0
 

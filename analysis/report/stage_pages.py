@@ -279,11 +279,14 @@ def demo_why_words(meta) -> str:
                else "is the twin's default"))
 
 
-def open_suite_page(summ, goal_lines, datasets, figure=None, notes="") -> str:
+def open_suite_page(summ, goal_lines, datasets, figure=None, notes="", *,
+                    detectable_chi2) -> str:
     """``README.md`` of :mod:`analysis.open_suite`: the goal lines with their counts
     (``goal_lines``: :func:`analysis.open_suite.goal_lines`) and one row per dataset of the
     summary table ``summ``; ``datasets`` is the datasets' folder as shown on the page,
-    ``figure`` the suite's PNG beside the page (None: none), ``notes`` text appended."""
+    ``figure`` the suite's PNG beside the page (None: none), ``notes`` text appended,
+    ``detectable_chi2`` the goal lines' detectability bar
+    (:data:`analysis.open_suite.DETECTABLE_CHI2`)."""
     md = ["# The loop on blind open-world datasets (SYNTHETIC)", "",
           "Datasets: `%s` (the twin once per condition at conditions the paper never ran, "
           "base parameters drawn from the Table-3 calibration's posterior, measurement noise, "
@@ -294,8 +297,8 @@ def open_suite_page(summ, goal_lines, datasets, figure=None, notes="") -> str:
     md += ["", "Detectability: the chi2 the hidden effects explain in the twin's own values "
            "at the truth (no measurement noise, one realisation's chaos): the base parameters "
            "fitted on the loop's final emulator without them, less with them at their true "
-           "strengths (>= 21: named with 90 % power). Covered: every hidden strength inside "
-           "its 95 % interval.", "",
+           "strengths (>= %g: named with 90 %% power). Covered: every hidden strength inside "
+           "its 95 %% interval." % detectable_chi2, "",
            "| dataset | hidden | detectability chi2 | found | covered | chi2/dof calibrated "
            "| last | twin rerun |", "|---|---|---|---|---|---|---|---|"]
     for r in summ.to_dict("records"):
