@@ -207,6 +207,24 @@ def _true_hidden(truth) -> dict:
             if candidates()[k].kind in OBSERVED_KINDS}
 
 
+def detectability(dataset, truth, loop_dir, each=False) -> tuple:
+    """(the chi2 the hidden effects explain, {effect: the chi2 it explains beyond the others})
+    on one fit of the loop's final model (see :func:`detectable_chi2` and
+    :func:`detectable_each`; the second {} unless ``each``). (NaN, {}) when no DEM or chain
+    effect is hidden or there is no model."""
+    true = _true_hidden(truth)
+    if not true:
+        return float("nan"), {}
+    m, obs = loop_model(dataset, loop_dir)
+    if m is None:
+        return float("nan"), {}
+    with_all = _leftover_chi2(m, obs, truth, true)
+    total = _leftover_chi2(m, obs, truth, {}) - with_all
+    beyond = ({k: _leftover_chi2(m, obs, truth, {j: s for j, s in true.items() if j != k})
+               - with_all for k in true} if each else {})
+    return total, beyond
+
+
 def detectable_chi2(dataset, truth, loop_dir) -> float:
     """The chi2 the hidden effects (DEM or measurement chain) explain: the twin's own values at
     the truth (:func:`truth_observations`, observed through the hidden chain; one twin
@@ -216,13 +234,7 @@ def detectable_chi2(dataset, truth, loop_dir) -> float:
     realisation's chaos, in both fits, cancels; the chi2 without the effects alone counts it
     as signal: 16-29 of 66 observations on no-effect datasets). With the dataset's sds. NaN
     when no such effect is hidden or there is no model."""
-    true = _true_hidden(truth)
-    if not true:
-        return float("nan")
-    m, obs = loop_model(dataset, loop_dir)
-    if m is None:
-        return float("nan")
-    return _leftover_chi2(m, obs, truth, {}) - _leftover_chi2(m, obs, truth, true)
+    return detectability(dataset, truth, loop_dir)[0]
 
 
 def detectable_each(dataset, truth, loop_dir) -> dict:
@@ -231,15 +243,7 @@ def detectable_each(dataset, truth, loop_dir) -> dict:
     its true strength, less fitted with all of them on. An effect under
     :data:`DETECTABLE_CHI2` here cannot be told from a shift of the base parameters once the
     other is found. {} when no such effect is hidden or a run is missing."""
-    true = _true_hidden(truth)
-    if not true:
-        return {}
-    m, obs = loop_model(dataset, loop_dir)
-    if m is None:
-        return {}
-    with_all = _leftover_chi2(m, obs, truth, true)
-    return {k: _leftover_chi2(m, obs, truth, {j: s for j, s in true.items() if j != k})
-            - with_all for k in true}
+    return detectability(dataset, truth, loop_dir, each=True)[1]
 
 
 def _dataset_names(datasets_dir):
@@ -341,9 +345,9 @@ def run_suite(datasets_dirs=DATASETS_DIRS, out_dir=OUT_DIR, only=None, log=print
                     if (dest / "parameters.csv").is_file() else None)
         if row["n_hidden"]:
             ds = load_dataset(datasets_dir / name)
-            row["detectable_chi2"] = detectable_chi2(ds, truth, dest)
-            if row["n_hidden"] >= 2:
-                each = detectable_each(ds, truth, dest)
+            pair = row["n_hidden"] >= 2
+            row["detectable_chi2"], each = detectability(ds, truth, dest, each=pair)
+            if pair:
                 for k, v in each.items():
                     row["%s_beyond_chi2" % k] = v
                 row["detectable_min_chi2"] = min(each.values()) if each else np.nan

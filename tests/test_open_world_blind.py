@@ -139,9 +139,8 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     model makes with the effects on score the no-effect fit's whole chi2; one realisation's
     chaos (a speed moved by 6 of its sds) is in both fits and hardly moves it (7.9 -> 7.4),
     while the no-effect fit's chi2 alone rises by 26 (what the old measure counted as the
-    effect's);
-    values made without the effects score <= 0; each hidden effect is scored; no loop folder
-    gives NaN."""
+    effect's); values made without the effects score <= 0; each hidden effect is scored; no
+    loop folder gives NaN."""
     import pandas as pd
     from analysis.fake_twin import run_fake_twin
     from analysis.hidden import make_hidden_dataset
