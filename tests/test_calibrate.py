@@ -60,7 +60,12 @@ def test_calibration_on_the_loops_emulator_covers_the_truth(tmp_path):
     assert 0.1 < res.acceptance < 0.8
     c = res.comparison
     assert list(c["condition_id"]) == list(conds["condition_id"])
-    assert c["v_err_pct"].abs().max() < 4 * 100 * FAKE_V_REL_SD
+    # the data are one twin realisation (chaos FAKE_V_REL_SD) with 0.3 % measurement noise,
+    # the rerun a mean of 2 seeds: their difference has sd sqrt(1.5^2 + 1.5^2 / 2 + 0.3^2) %
+    # = 1.86 %; every condition within 4 of those (6.0 % was 3.2 of them: a 1 % event over 8
+    # conditions, met at 6.01 % where the GP's fit differs in the last digits)
+    diff_sd = 100 * np.sqrt(FAKE_V_REL_SD ** 2 * (1 + 1 / 2) + 0.003 ** 2)
+    assert c["v_err_pct"].abs().max() < 4 * diff_sd
     assert set(res.design["wave"].astype(str)) == {"0", "focus", "confirm 1"}
     assert res.n_runs == len(res.design) and res.new_runs > 0
 
