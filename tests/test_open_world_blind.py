@@ -137,9 +137,8 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     """Detectability is the chi2 the hidden effects explain in the twin's values at the truth:
     the no-effect fit's chi2 less the fit's with them on at their true strengths. Values the
     model makes with the effects on score the no-effect fit's whole chi2; one realisation's
-    chaos (a speed moved by 6 of its sds) is in both fits and moves it by far less than
-    the no-effect fit's chi2, while the no-effect fit's chi2 alone rises by 26 (what the old measure counted as the
-    effect's); values made without the effects score <= 0; each hidden effect is scored; no
+    chaos (a speed moved by 6 of its sds) is in both fits and moves it far less than the
+    no-effect fit's chi2 alone rises (26: what the old measure counted as the effect's); values made without the effects score <= 0; each hidden effect is scored; no
     loop folder gives NaN."""
     import pandas as pd
     from analysis.fake_twin import run_fake_twin
