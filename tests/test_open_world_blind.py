@@ -138,8 +138,9 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     the no-effect fit's chi2 less the fit's with them on at their true strengths. Values the
     model makes with the effects on score the no-effect fit's whole chi2; one realisation's
     chaos (a speed moved by 6 of its sds) is in both fits and moves it far less than the
-    no-effect fit's chi2 alone rises (26: what the old measure counted as the effect's); values made without the effects score <= 0; each hidden effect is scored; no
-    loop folder gives NaN."""
+    no-effect fit's chi2 alone rises (26: what the old measure counted as the effect's);
+    values made without the effects score <= 0; each hidden effect is scored; no loop folder
+    gives NaN."""
     import pandas as pd
     from analysis.fake_twin import run_fake_twin
     from analysis.hidden import make_hidden_dataset
