@@ -162,7 +162,8 @@ def set_restitution(twin, interactions, e_phys, vn_in=None):
     detected up to ~20 us (a tenth of the contact) after onset and a heavily damped contact
     dissipates a good part of its energy early, so given ``vn_in`` (the approach speed at onset)
     the betan for the rest of the contact is solved from the contact's own equation of motion
-    (:func:`remaining_contact_betan`); without it the Thornton value is set. Returns the betan.
+    (:func:`remaining_contact_betan`), at most :func:`stable_betan` (what the time step
+    integrates); without it the Thornton value is set. Returns the betan.
     """
     from yade import O
     if not interactions:
@@ -171,6 +172,7 @@ def set_restitution(twin, interactions, e_phys, vn_in=None):
     beta = thornton_betan(yade_restitution(twin, e_phys))
     if vn_in is not None:
         beta = remaining_contact_betan(twin, interactions, vn_in, e_phys, e_now, beta)
+        beta = min(beta, stable_betan(twin.mass, interactions[0].phys.kno, vn_in, O.dt))
     for i in interactions:
         i.phys.betan = beta
         _SET_THIS_STEP[(i.id1, i.id2)] = (O.iter, e_phys)
@@ -178,6 +180,23 @@ def set_restitution(twin, interactions, e_phys, vn_in=None):
 
 
 _SQ158 = (15.0 / 8.0) ** 0.5
+
+
+def stable_betan(mass_kg, kno, vn_in_m_s, dt_s):
+    """The largest normal damping ratio the scene's explicit step integrates as damping [-].
+
+    YADE's step updates the velocity with the damping force at the present velocity:
+    v+ = v (1 - 2 betan omega dt) from damping alone, omega = sqrt(k_n / m), k_n = 3/2 k_no
+    delta^(1/2) largest at the elastic impact's deepest overlap at ``vn_in_m_s``. At
+    betan = 1 / (2 omega dt) one step stops the approach; about 3x beyond it the step reverses
+    the approach faster than it came and the contact makes energy (the ball leaves the jar).
+    The impact rebounds with e ~ 0.003 at this betan: a restitution's floor the time step sets.
+    """
+    if vn_in_m_s <= 0.0 or kno <= 0.0 or dt_s <= 0.0:
+        return float("inf")
+    d_max = (1.25 * mass_kg * vn_in_m_s * vn_in_m_s / kno) ** 0.4
+    omega = (1.5 * kno * d_max ** 0.5 / mass_kg) ** 0.5
+    return 0.5 / (omega * dt_s)
 
 
 def hertz_exit_speed(x0, v0, betan, h=0.004):

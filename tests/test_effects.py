@@ -181,6 +181,35 @@ def test_thornton_betan_is_monotone_and_elastic_at_one():
     assert base.hertz_exit_speed(0.0, 1.0, 0.0) == pytest.approx(1.0, abs=1e-4)
 
 
+def _stepped_exit_speed(betan, v_in, m=0.028, kno=5e8, dt=3e-6):
+    """Rebound speed / approach speed of one ball-wall impact stepped as YADE steps it: the
+    velocity updated with the Hertz force and the damping at the present velocity
+    (Law2_ScGeom_MindlinPhys_Mindlin: k_n = 3/2 k_no delta^1/2, c_n = 2 betan sqrt(m k_n), the
+    normal force clipped at 0), then the position (19 mm steel ball on PMMA, the scene's dt)."""
+    x, v = 0.0, v_in
+    for _ in range(10 ** 6):
+        f = 0.0
+        if x > 0.0:
+            f = max(kno * x ** 1.5 + 2.0 * betan * (m * 1.5 * kno * x ** 0.5) ** 0.5 * v, 0.0)
+        v -= f / m * dt
+        x += v * dt
+        if x < 0.0 and v < 0.0:
+            return -v / v_in
+    raise AssertionError("the contact did not end")
+
+
+@pytest.mark.parametrize("v_in", [0.5, 3.0, 6.0])
+def test_stable_betan_is_the_damping_the_time_step_can_integrate(v_in):
+    """At the cap the stepped impact is near-plastic (e < 0.01, as the continuous equation);
+    at 5x the cap the step makes energy (rebound faster than the approach: the ball leaves the
+    jar, as 9 twin runs with e(v) at its floor did) - the cap is what keeps it away."""
+    cap = base.stable_betan(0.028, 5e8, v_in, 3e-6)
+    assert _stepped_exit_speed(cap, v_in) < 0.01
+    assert base.hertz_exit_speed(0.0, 1.0, cap) < 0.01
+    assert _stepped_exit_speed(5.0 * cap, v_in) > 1.0
+    assert base.stable_betan(0.028, 5e8, 0.0, 3e-6) == float("inf")
+
+
 # ---------------------------------------------------------------- DEM effects' formulas
 def test_viscoelastic_law():
     f = mod("viscoelastic_restitution").restitution
