@@ -277,9 +277,19 @@ class GPEmulator(_UnitCube):
     def _chaos_var(self, X):
         """(n, n_outputs) replicate-estimated chaos variance of one run at raw inputs X (model
         units: log for log outputs); a noise group never seen takes the median over the seen
-        groups."""
-        med = np.median(np.array(list(self.chaos_var_.values())), axis=0)
-        return np.array([self.chaos_var_.get(g, med) for g in self._groups(X)])
+        groups. Remembered by the rows' noise keys (a fit asks for the same conditions at
+        every point); read-only."""
+        keys = X[:, [self.inputs.index(k) for k in self.noise_keys]]
+        memo = self.__dict__.setdefault("_chaos_memo", {})
+        hit = memo.get(keys.tobytes())
+        if hit is None:
+            med = np.median(np.array(list(self.chaos_var_.values())), axis=0)
+            hit = np.array([self.chaos_var_.get(g, med) for g in self._groups(X)])
+            hit.flags.writeable = False
+            if len(memo) >= 256:
+                memo.clear()
+            memo[keys.tobytes()] = hit
+        return hit
 
     # -------------------------------------------------------------------------------- fit
     def fit(self, X, Y):
@@ -302,7 +312,7 @@ class GPEmulator(_UnitCube):
         if len(Xs) < len(self.inputs) + 2:
             raise ValueError("need at least %d training runs, got %d"
                              % (len(self.inputs) + 2, len(Xs)))
-        self.chaos_var_, self.noise_table_ = None, None
+        self.chaos_var_, self.noise_table_, self._chaos_memo = None, None, {}
         if self.noise_keys is not None:
             missing = [k for k in self.noise_keys if k not in self.inputs]
             if missing:
