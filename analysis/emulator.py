@@ -334,7 +334,6 @@ class GPEmulator(_UnitCube):
         self.nugget_var_ = np.array([gp.kernel_.k2.noise_level * gp._y_train_std ** 2
                                      for gp in self.gps_])
         self.n_train_ = len(Xs)
-        self._train_alpha = alpha
         self.loo_ = self.loo_report()
         return self
 
