@@ -279,16 +279,16 @@ class GPEmulator(_UnitCube):
         units: log for log outputs); a noise group never seen takes the median over the seen
         groups. Remembered by the rows' noise keys (a fit asks for the same conditions at
         every point); read-only."""
-        keys = X[:, [self.inputs.index(k) for k in self.noise_keys]]
+        key = X[:, [self.inputs.index(k) for k in self.noise_keys]].tobytes()
         memo = self.__dict__.setdefault("_chaos_memo", {})
-        hit = memo.get(keys.tobytes())
+        hit = memo.get(key)
         if hit is None:
             med = np.median(np.array(list(self.chaos_var_.values())), axis=0)
             hit = np.array([self.chaos_var_.get(g, med) for g in self._groups(X)])
             hit.flags.writeable = False
             if len(memo) >= 256:
                 memo.clear()
-            memo[keys.tobytes()] = hit
+            memo[key] = hit
         return hit
 
     # -------------------------------------------------------------------------------- fit

@@ -182,6 +182,12 @@ def set_restitution(twin, interactions, e_phys, vn_in=None):
 _SQ158 = (15.0 / 8.0) ** 0.5
 
 
+def elastic_overlap_m(mass_kg, kno, vn_in_m_s):
+    """Deepest overlap of an undamped Hertz impact at approach speed ``vn_in_m_s`` [m]:
+    (5/4 m v^2 / k_no)^(2/5)."""
+    return (1.25 * mass_kg * vn_in_m_s * vn_in_m_s / kno) ** 0.4
+
+
 def stable_betan(mass_kg, kno, vn_in_m_s, dt_s):
     """The largest normal damping ratio the scene's explicit step integrates as damping [-].
 
@@ -194,7 +200,7 @@ def stable_betan(mass_kg, kno, vn_in_m_s, dt_s):
     """
     if vn_in_m_s <= 0.0 or kno <= 0.0 or dt_s <= 0.0:
         return float("inf")
-    d_max = (1.25 * mass_kg * vn_in_m_s * vn_in_m_s / kno) ** 0.4
+    d_max = elastic_overlap_m(mass_kg, kno, vn_in_m_s)
     omega = (1.5 * kno * d_max ** 0.5 / mass_kg) ** 0.5
     return 0.5 / (omega * dt_s)
 
@@ -261,7 +267,7 @@ def remaining_contact_betan(twin, interactions, vn_in, e_target, e_now, beta_gue
     n = n / max(n.norm(), 1e-300)
     v_wall = wall.vel + wall.angVel.cross(cp - wall.pos)
     rate = (ball.vel - v_wall).dot(n)
-    d_max = (1.25 * twin.mass * vn_in * vn_in / i.phys.kno) ** 0.4
+    d_max = elastic_overlap_m(twin.mass, i.phys.kno, vn_in)
     x0, v0 = i.geom.penetrationDepth / d_max, rate / vn_in
     if v0 <= 0.05 or x0 <= 0.0:
         return beta_guess
