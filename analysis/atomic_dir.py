@@ -7,13 +7,15 @@ wrote itself. It refuses, before anything is written,
 
 * the current directory, the repository, a folder holding either, or a file;
 * a folder inside the repository but outside ``results/`` (sources, ``data/`` - the measurement
-  datasets), ``results/`` itself and the run cache ``results/runs/``;
+  datasets), ``results/`` itself and the caches ``results/runs/``, ``results/runs_fake/`` and
+  ``results/track_cache/``;
 * any folder given as ``protected`` (e.g. the dataset being analysed), one inside it or one
   holding it;
 * a folder whose parent cannot be made or written (a file on the way, a read-only folder:
   :func:`check_parent`);
 * an existing, non-empty folder that carries no mark (:data:`MARKER`) of an earlier output of
-  this project and does not sit in ``results/``. A stage may name the files it writes
+  this project - in ``results/`` too (a folder a user made there is theirs; the committed
+  study folders carry the mark). A stage may name the files it writes
   (``own_names``, and say how it recognises its own earlier output, ``is_own``): then an
   unmarked folder in the repository's home of its outputs (e.g. a committed
   ``data/measurements/<name>`` written before the mark existed) is also replaced when it holds
@@ -48,6 +50,13 @@ class OutputError(ValueError):
 def _repo_paths():
     from analysis.config import REPO_ROOT, RESULTS_DIR, RUNS_DIR
     return Path(REPO_ROOT).resolve(), Path(RESULTS_DIR).resolve(), Path(RUNS_DIR).resolve()
+
+
+def _caches():
+    """The caches beside the run cache that no output may replace: the FAKE twin's runs and
+    the tracks of datasets' films."""
+    from analysis.config import FAKE_RUNS_DIR, TRACK_CACHE_DIR
+    return Path(FAKE_RUNS_DIR).resolve(), Path(TRACK_CACHE_DIR).resolve()
 
 
 def _within(a: Path, b: Path) -> bool:
@@ -155,9 +164,10 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names
         where = " or ".join("%s/<name>" % h.relative_to(repo) for h in homes)
         raise OutputError("%s %s lies in the repository outside %s; give %s or a folder "
                           "outside the repository" % (flag, out_dir, where, where))
-    if _within(out, runs) or _within(runs, out):
-        raise OutputError("%s %s is (or holds) the twin's run cache results/runs/"
-                          % (flag, out_dir))
+    for cache in (runs, *_caches()):
+        if _within(out, cache) or _within(cache, out):
+            raise OutputError("%s %s is (or holds) a cache of this project (%s/)"
+                              % (flag, out_dir, cache.name))
     for p in protected or ():
         if p is None:
             continue
@@ -171,7 +181,6 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names
             raise OutputError("%s %s is a file, not a folder" % (flag, out_dir))
         at_home = any(_within(out, h) for h in homes)
         if (any(out.iterdir()) and not (out / MARKER).exists()
-                and not (area == "results" and _within(out, results))
                 and not (own_names is not None and at_home and _only_own_files(out, own_names)
                          and (is_own is None or is_own(out)))):
             raise OutputError("%s %s already holds files this project did not write; give "
@@ -186,7 +195,11 @@ def staging_dir(out_dir, protected=(), area="results", flag="--out", own_names=N
     out_dir = Path(out_dir)
     check_out_dir(out_dir, protected, area, flag, own_names, is_own)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % out_dir.name, dir=out_dir.parent))
+    mask = os.umask(0)
+    os.umask(mask)
+    tmp.chmod(0o777 & ~mask)        # a folder's usual mode, not mkdtemp's private 0700
+    return tmp
 
 
 def publish_dir(tmp, out_dir, protected=(), area="results", flag="--out", own_names=None,
@@ -245,8 +258,10 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out", homes=()):
     if _within(out, repo) and not any(_within(out.parent, h) for h in homes):
         raise OutputError("%s %s lies in the repository outside results/; give results/<name> "
                           "or a path outside the repository" % (flag, out_file))
-    if _within(out, runs):
-        raise OutputError("%s %s lies in the twin's run cache results/runs/" % (flag, out_file))
+    for cache in (runs, *_caches()):
+        if _within(out, cache):
+            raise OutputError("%s %s lies in a cache of this project (%s/)"
+                              % (flag, out_file, cache.name))
     for p in protected or ():
         if p is None:
             continue

@@ -1138,9 +1138,16 @@ def run_settings(pairs, *, frame="lab", record_s=None):
     if frame != "lab":
         out["frame"] = frame
     try:
-        twin_config.complete_config(dict(out))
+        full = twin_config.complete_config(dict(out))
     except twin_config.ConfigError as exc:
         raise ValueError("--set: %s" % exc)
+    if ({"stl_path", "stl_units"} & set(out)) and twin_config.parametric_jar(full) is None:
+        # the user's jar mesh read and checked now, not by every twin run that would fail on it
+        from geometry.stl_io import MeshError, measure_jar
+        try:
+            measure_jar(twin_config.resolve_stl(full), full["stl_units"])
+        except MeshError as exc:
+            raise ValueError("--set stl_path=%s: %s" % (full["stl_path"], exc))
     return out or None
 
 
@@ -1520,8 +1527,12 @@ class _Parser(argparse.ArgumentParser):
 def check_options(a):
     """Refuse (ValueError, one line) every option value the loop cannot run with, before the
     dataset is read or anything planned - the dry run included."""
+    if not str(a.dataset).strip():
+        raise ValueError("--dataset is empty; give the dataset's folder")
     if a.workers < 1:
         raise ValueError("--workers must be >= 1, got %d" % a.workers)
+    if a.seed < 0:
+        raise ValueError("--seed must be >= 0, got %d" % a.seed)
     if a.budget_runs is not None and a.budget_runs < 0:
         raise ValueError("--budget-runs must be >= 0, got %d" % a.budget_runs)
     for flag in ("diff_replicates", "max_reanchor", "max_refits"):

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import difflib
 import json
 import math
 import shutil
@@ -404,6 +405,8 @@ def read_table(path, fname=None):
             rows = list(csv.reader(fh, skipinitialspace=True))
     except FileNotFoundError:
         raise DatasetError("%s: file is missing" % fname) from None
+    except IsADirectoryError:
+        raise DatasetError("%s: is a folder, not a file" % fname) from None
     except (UnicodeDecodeError, csv.Error) as exc:
         raise DatasetError("%s: malformed CSV (%s)" % (fname, exc)) from None
     rows = [r for r in rows if r]          # blank lines
@@ -428,10 +431,17 @@ def read_json(path, fname=None):
             return twin_config.strict_json_loads(fh.read())
     except FileNotFoundError:
         raise DatasetError("%s: file is missing" % fname) from None
+    except IsADirectoryError:
+        raise DatasetError("%s: is a folder, not a file" % fname) from None
     except twin_config.DuplicateKeyError as exc:
         raise DatasetError("%s: %s" % (fname, exc)) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatasetError("%s: malformed JSON (%s)" % (fname, exc)) from None
+
+
+#: the keys of dataset.json the project reads (docs/dataset_format.md); an unknown key that is
+#: a near miss of one of them is refused (a misspelt ``synthetic`` would drop the SYNTHETIC mark)
+DATASET_KEYS = ("name", "description", "source", "velocity_frame", "synthetic")
 
 
 def _validate_meta(meta, fname="dataset.json"):
@@ -445,6 +455,11 @@ def _validate_meta(meta, fname="dataset.json"):
     if meta["velocity_frame"] not in VELOCITY_FRAMES:
         raise DatasetError("%s: velocity_frame must be 'lab' or 'jar', got %r"
                            % (fname, meta["velocity_frame"]))
+    for key in meta:
+        near = difflib.get_close_matches(key, DATASET_KEYS, n=1, cutoff=0.8)
+        if key not in DATASET_KEYS and near:
+            raise DatasetError("%s: unknown key %r - did you mean %r? (other unknown keys are "
+                               "kept and ignored)" % (fname, key, near[0]))
     if "synthetic" in meta and not isinstance(meta["synthetic"], bool):
         raise DatasetError("%s: key 'synthetic' must be true or false, got %r"
                            % (fname, meta["synthetic"]))
@@ -853,10 +868,26 @@ def validate(dataset: Dataset) -> Dataset:
     yields = None
     if dataset.yields is not None:
         yields = validate_yields_table(dataset.yields, ids)
+    _check_each_condition_measured(cond, summ, tracks, dataset.video_files, yields,
+                                   "conditions.csv" if dataset.path is None
+                                   else str(Path(dataset.path) / "conditions.csv"))
     return Dataset(name=meta["name"], description=meta["description"], source=meta["source"],
                    velocity_frame=meta["velocity_frame"], conditions=cond, summary=summ,
                    tracks=tracks, video=dataset.video, video_files=dict(dataset.video_files),
                    yields=yields, meta=meta, path=dataset.path)
+
+
+def _check_each_condition_measured(cond, summ, tracks, video_files, yields, fname):
+    """Every condition is measured somewhere (a summary row, a track, a film or a yield): a
+    condition with nothing would only cost twin runs."""
+    seen = set(summ["condition_id"]) | set(tracks) | set(video_files)
+    if yields is not None:
+        seen |= set(yields["condition_id"])
+    for i, cid in enumerate(cond["condition_id"], start=1):
+        if cid not in seen:
+            raise DatasetError("%s: condition %r has no measurement (no row in summary.csv, no "
+                               "track, film or yield); measure it or drop the row"
+                               % (_where(fname, i, "condition_id"), cid))
 
 
 def _as_str(df):
@@ -896,8 +927,13 @@ def load_dataset(path) -> Dataset:
         the first contract violation found, naming the file, row and column.
     """
     path = Path(path)
+    if path.is_file():
+        raise DatasetError("%s: is a file; give the dataset's folder" % path)
     if not path.is_dir():
         raise DatasetError("%s: dataset folder not found" % path)
+    for sub in ("tracks", "videos"):
+        if (path / sub).exists() and not (path / sub).is_dir():
+            raise DatasetError("%s: is a file; a dataset's %s/ is a folder" % (path / sub, sub))
     meta = read_json(path / "dataset.json")
     _validate_meta(meta, str(path / "dataset.json"))
     raw = {"conditions": read_table(path / "conditions.csv", str(path / "conditions.csv")),
@@ -1084,9 +1120,11 @@ def main(argv=None):
                                  "data/measurements/paper_table3")
     ap.add_argument("dataset", help="dataset folder data/measurements/<name>/")
     args = ap.parse_args(argv)
+    from analysis.conditions import ConditionError, physics_table
     try:
         ds = load_dataset(args.dataset)
-    except DatasetError as exc:
+        physics_table(ds.conditions)        # what the twin can run: one ball, distinct physics
+    except (DatasetError, ConditionError) as exc:
         print("analysis.measurements: error: %s" % exc, file=sys.stderr)
         return 2
     for line in input_warnings(ds):

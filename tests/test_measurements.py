@@ -282,3 +282,67 @@ def test_a_stated_motion_mode_is_one_of_the_twins_or_empty():
     msg = str(e.value)
     assert "row 2 (line 3), column 'motion_mode'" in msg and "'bouncing'" in msg, msg
     assert all(m in msg for m in MOTION_MODES)
+
+
+def test_a_folder_where_a_file_belongs_is_one_error(ds_dir):
+    """A file of the dataset that is a folder (or a folder that is a file) is named, never a
+    traceback."""
+    for rel, phrase in (("summary.csv", "summary.csv: is a folder"),
+                        ("dataset.json", "dataset.json: is a folder")):
+        keep = (ds_dir / rel).read_bytes()
+        (ds_dir / rel).unlink()
+        (ds_dir / rel).mkdir()
+        with pytest.raises(DatasetError, match=phrase):
+            load_dataset(ds_dir)
+        (ds_dir / rel).rmdir()
+        (ds_dir / rel).write_bytes(keep)
+    (ds_dir / "tracks").write_text("x")
+    with pytest.raises(DatasetError, match="tracks: is a file"):
+        load_dataset(ds_dir)
+    (ds_dir / "tracks").unlink()
+    (ds_dir / "tracks").mkdir()
+    (ds_dir / "tracks" / "f25_d17.5.csv").mkdir()
+    with pytest.raises(DatasetError, match="f25_d17.5.csv: is a folder"):
+        load_dataset(ds_dir)
+    with pytest.raises(DatasetError, match="is a file; give the dataset's folder"):
+        load_dataset(ds_dir / "summary.csv")
+
+
+def test_a_misspelt_key_of_dataset_json_is_refused_other_keys_are_kept(ds_dir):
+    """'synthetc' would drop the SYNTHETIC mark without a word: refused, naming the key it
+    resembles; a key unlike any the project reads is kept and ignored."""
+    meta = json.loads((ds_dir / "dataset.json").read_text())
+    (ds_dir / "dataset.json").write_text(json.dumps(dict(meta, synthetc=True)))
+    with pytest.raises(DatasetError, match="unknown key 'synthetc' - did you mean 'synthetic'"):
+        load_dataset(ds_dir)
+    (ds_dir / "dataset.json").write_text(json.dumps(dict(meta, operator="A. N. Other")))
+    assert load_dataset(ds_dir).meta["operator"] == "A. N. Other"
+
+
+def test_a_condition_without_any_measurement_is_refused(ds_dir):
+    """A condition with no summary row, track, film or yield would only cost twin runs."""
+    lines = (ds_dir / "summary.csv").read_text().splitlines()
+    gone = lines[1].split(",")[0]
+    (ds_dir / "summary.csv").write_text("\n".join([lines[0]] + lines[2:]) + "\n")
+    with pytest.raises(DatasetError, match="condition %r has no measurement" % gone):
+        load_dataset(ds_dir)
+    (ds_dir / "yields.csv").write_text("condition_id,time_min,yield_pct\n%s,5,10\n" % gone)
+    assert gone in set(load_dataset(ds_dir).conditions["condition_id"])   # a yield is one
+
+
+def test_cli_refuses_what_the_twin_cannot_run(ds_dir, capsys):
+    """The check says what the loop would: two conditions of one physics, or two balls."""
+    text = (ds_dir / "conditions.csv").read_text()
+    header, first = text.splitlines()[:2]
+    cols = header.split(",")
+    row = dict(zip(cols, first.split(",")))
+    twin = dict(row, condition_id="again")
+    (ds_dir / "conditions.csv").write_text(text.rstrip("\n") + "\n"
+                                           + ",".join(twin[c] for c in cols) + "\n")
+    srow = (ds_dir / "summary.csv").read_text().splitlines()
+    (ds_dir / "summary.csv").write_text("\n".join(srow + [srow[1].replace(row["condition_id"],
+                                                                          "again", 1)]) + "\n")
+    assert load_dataset(ds_dir) is not None            # a valid dataset ...
+    assert main([str(ds_dir)]) == 2                    # ... the twin cannot run
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "describe the same physics" in err

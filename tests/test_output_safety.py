@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from analysis import loop
-from analysis.atomic_dir import MARKER, OutputError, check_out_dir, publish_dir, staging_dir
+from analysis.atomic_dir import (MARKER, OutputError, check_out_dir, output_dir, publish_dir,
+                                 staging_dir)
 from analysis.config import PAPER_TABLE3_DIR, REPO_ROOT, RUNS_DIR
 
 
@@ -216,16 +217,42 @@ def test_committed_unmarked_dataset_is_replaced_the_first_time(fake_repo, capsys
                       is_own=lambda p: False)
 
 
-def test_committed_unmarked_results_folder_is_replaced(fake_repo):
-    """A stage's committed folder under results/ (written before the mark) may be replaced."""
+def test_committed_results_folder_is_replaced(fake_repo):
+    """A stage's committed folder under results/ carries the mark: its stage replaces it."""
     from analysis.config import KINETICS_DIR
     old = fake_repo / "results" / "kinetics"
     shutil.copytree(KINETICS_DIR, old)
+    assert (old / MARKER).exists()
     tmp = staging_dir(old)
     (tmp / "kinetics_fit.json").write_text("{}")
     publish_dir(tmp, old)
     assert (old / MARKER).exists() and sorted(p.name for p in old.iterdir()) == sorted(
         [MARKER, "kinetics_fit.json"])
+
+
+def test_a_users_folder_in_results_is_refused(fake_repo):
+    """results/ is where outputs live, not a licence to replace anything there: a folder a user
+    made in it (no mark) is refused and left as it was."""
+    mine = fake_repo / "results" / "my_notes"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="did not write"):
+        with output_dir(mine) as tmp:
+            (tmp / "x.csv").write_text("a\n")
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    assert (mine / "notes.txt").read_text() == "mine"
+
+
+def test_the_caches_are_never_an_output(tmp_path):
+    """The FAKE twin's run cache and the films' track cache are refused like the run cache."""
+    from analysis.atomic_dir import check_out_file
+    from analysis.config import FAKE_RUNS_DIR, TRACK_CACHE_DIR
+    for cache in (FAKE_RUNS_DIR, TRACK_CACHE_DIR):
+        for target in (cache, cache / "sub"):
+            with pytest.raises(OutputError, match="cache"):
+                check_out_dir(target)
+        with pytest.raises(OutputError, match="cache"):
+            check_out_file(cache / "x.csv")
 
 
 def test_report_replaces_only_its_own_pages(tmp_path, capsys):

@@ -286,7 +286,7 @@ def run_id(cfg, root=None):
     h.update(json.dumps(full, sort_keys=True, separators=(",", ":")).encode())
     h.update(b"summary%d" % SUMMARY_VERSION)
     stl = None if parametric else resolve_stl(full, root)
-    if not parametric and os.path.exists(stl):
+    if not parametric and os.path.isfile(stl):
         with open(stl, "rb") as fh:
             h.update(hashlib.sha256(fh.read()).digest())
     return h.hexdigest()[:16]
