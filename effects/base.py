@@ -399,12 +399,27 @@ class ObservationEffect(_Declared):
 def accepted_keywords(fn, kwargs):
     """The items of ``kwargs`` that ``fn`` accepts by name (all of them if it takes
     ``**kwargs``)."""
-    import inspect
-    params = inspect.signature(fn).parameters.values()
-    if any(p.kind == p.VAR_KEYWORD for p in params):
+    names = _keyword_names(fn)
+    if names is None:
         return dict(kwargs)
-    names = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
     return {k: v for k, v in kwargs.items() if k in names}
+
+
+_KEYWORD_NAMES = {}
+
+
+def _keyword_names(fn):
+    """The names ``fn`` takes by keyword (None: any, a ``**kwargs``), read once per function
+    (a fit asks for an observation effect's factor at every point)."""
+    hit = _KEYWORD_NAMES.get(fn, False)
+    if hit is False:
+        import inspect
+        params = inspect.signature(fn).parameters.values()
+        hit = (None if any(p.kind == p.VAR_KEYWORD for p in params) else
+               frozenset(p.name for p in params
+                         if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)))
+        _KEYWORD_NAMES[fn] = hit
+    return hit
 
 
 def nonnegative_array(name, x):
