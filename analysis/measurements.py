@@ -684,8 +684,6 @@ PLAUSIBLE = {
     "f_col_hz": (None, F_COL_MAX_HZ, None, "collisions per second; per minute?"),
     "f_col_sd_hz": (None, F_COL_MAX_HZ, None, "collisions per second; per minute?"),
 }
-#: the upper bounds alone (kept for readers of the former table)
-PLAUSIBLE_MAX = {c: (b[1], b[3]) for c, b in PLAUSIBLE.items() if b[1] is not None}
 
 
 def _hint(text, v):

@@ -401,7 +401,6 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
     integral_raw = 0.0
     count_extra = 0.0  # bridged gap time: counted for f_col, not for v_mean
     prev_state, prev_end_t, prev_end_idx = 0, None, None
-    last_zero_t = None
     for a, b in runs:
         vx_run = _smooth(vxr[a:b], w, polyorder)
         st = _hysteresis_states(vx_run, db)

@@ -686,9 +686,6 @@ def fit_bundle(table: pd.DataFrame, kinds=KINDS, random_state=0, rf_param_grid=N
                                   **{k: _model_params(k, m) for k, m in models.items()}})
 
 
-BUNDLE_PATH = config.SURROGATE_DIR / "surrogate.joblib"
-
-
 # --------------------------------------------------------------------------------------------
 # CLI
 # --------------------------------------------------------------------------------------------

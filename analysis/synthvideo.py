@@ -476,7 +476,6 @@ def render_frames(positions, jar_x_m, cam: Camera, ball_diameter_m: float,
     rng = np.random.default_rng(0) if rng is None else rng
     H, W = cam.height_px, cam.width_px
     r_px = 0.5 * ball_diameter_m / cam.m_per_px
-    n_sub_max = 1
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
     bg = np.full((H, W), cam.background, np.float32)
     C = cam.ball_level - cam.background

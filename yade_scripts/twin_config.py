@@ -143,9 +143,6 @@ CHOICES = {
     "rolling_model": ("spring", "constant_torque"),
 }
 
-#: Keys that are not plain floats.
-NON_FLOAT = set(CHOICES) | {"restitution_compensation", "jar_inner_diameter_m", "jar_inner_length_m", "ball_init_pos_m", "ball_init_vel_m_s", "stl_path", "effects",
-                            "seed", "steady_window_cycles"}
 
 
 class ConfigError(ValueError):
