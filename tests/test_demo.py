@@ -43,3 +43,36 @@ def test_a_missing_calibrated_profile_is_an_error_before_any_run(tmp_path, monke
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("analysis.demo: error: ")
     assert "gone.json" in err[0] and not (tmp_path / "demo").exists()
+
+
+def test_demo_loops_make_at_most_their_budget_of_new_runs(tmp_path, monkeypatch):
+    """Each demo loop runs with the budget of new twin runs it was given (the committed table
+    may lack a focus wave where this machine's fit lands elsewhere); a loop that needs more
+    prints its plan (a dry run) and a line saying so, and the other loop still runs."""
+    from analysis import loop
+    calls = []
+
+    def fake_main(argv):
+        calls.append(list(argv))
+        if "--dry-run" in argv:
+            return 0
+        return 3 if argv[argv.index("--out") + 1].endswith("loop") and \
+            not argv[argv.index("--out") + 1].endswith("blind_loop") else 0
+    monkeypatch.setattr(loop, "main", fake_main)
+    lines = demo.demo_loops(tmp_path, 2, 40)
+    runs = [c for c in calls if "--dry-run" not in c]
+    assert [c[c.index("--budget-runs") + 1] for c in runs] == ["40", "40"]
+    assert sum("--dry-run" in c for c in calls) == 1
+    assert "needs more than 40 new twin runs" in lines[0]
+    assert lines[1].endswith("blind_loop/report.md")
+
+
+def test_a_negative_loop_budget_is_refused_before_any_run(tmp_path, monkeypatch, capsys):
+    from analysis import sweep
+
+    def never(*a, **k):
+        pytest.fail("a twin run started")
+    monkeypatch.setattr(sweep, "run_sweep", never)
+    assert demo.main(["--out", str(tmp_path / "demo"), "--loop-budget-runs", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--loop-budget-runs" in err[0]
