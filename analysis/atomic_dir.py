@@ -53,10 +53,12 @@ def _repo_paths():
 
 
 def _caches():
-    """The caches beside the run cache that no output may replace: the FAKE twin's runs and
-    the tracks of datasets' films."""
-    from analysis.config import FAKE_RUNS_DIR, TRACK_CACHE_DIR
-    return Path(FAKE_RUNS_DIR).resolve(), Path(TRACK_CACHE_DIR).resolve()
+    """{folder: words} of the caches no output may replace: the twin's run cache, the FAKE
+    twin's and the tracks of datasets' films."""
+    from analysis.config import FAKE_RUNS_DIR, RUNS_DIR, TRACK_CACHE_DIR
+    return {Path(RUNS_DIR).resolve(): "the twin's run cache results/runs/",
+            Path(FAKE_RUNS_DIR).resolve(): "the FAKE twin's run cache results/runs_fake/",
+            Path(TRACK_CACHE_DIR).resolve(): "the films' track cache results/track_cache/"}
 
 
 def _within(a: Path, b: Path) -> bool:
@@ -145,7 +147,7 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names
     Path - ``out_dir`` resolved
     """
     out = Path(out_dir).expanduser().resolve()
-    repo, results, runs = _repo_paths()
+    repo, results, _ = _repo_paths()
     cwd = Path.cwd().resolve()
     if _within(cwd, out):
         raise OutputError("%s %s is the current directory or holds it; give a new folder, "
@@ -164,10 +166,9 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names
         where = " or ".join("%s/<name>" % h.relative_to(repo) for h in homes)
         raise OutputError("%s %s lies in the repository outside %s; give %s or a folder "
                           "outside the repository" % (flag, out_dir, where, where))
-    for cache in (runs, *_caches()):
+    for cache, words in _caches().items():
         if _within(out, cache) or _within(cache, out):
-            raise OutputError("%s %s is (or holds) a cache of this project (%s/)"
-                              % (flag, out_dir, cache.name))
+            raise OutputError("%s %s is (or holds) %s" % (flag, out_dir, words))
     for p in protected or ():
         if p is None:
             continue
@@ -251,17 +252,16 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out", homes=()):
     Path - ``out_file`` resolved
     """
     out = Path(out_file).expanduser().resolve()
-    repo, results, runs = _repo_paths()
+    repo, results, _ = _repo_paths()
     if out.is_dir():
         raise OutputError("%s %s is a folder; give a file name" % (flag, out_file))
     homes = [results] + [Path(h).expanduser().resolve() for h in homes or ()]
     if _within(out, repo) and not any(_within(out.parent, h) for h in homes):
         raise OutputError("%s %s lies in the repository outside results/; give results/<name> "
                           "or a path outside the repository" % (flag, out_file))
-    for cache in (runs, *_caches()):
+    for cache, words in _caches().items():
         if _within(out, cache):
-            raise OutputError("%s %s lies in a cache of this project (%s/)"
-                              % (flag, out_file, cache.name))
+            raise OutputError("%s %s lies in %s" % (flag, out_file, words))
     for p in protected or ():
         if p is None:
             continue
