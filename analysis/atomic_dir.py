@@ -48,8 +48,8 @@ class OutputError(ValueError):
 
 
 def _repo_paths():
-    from analysis.config import REPO_ROOT, RESULTS_DIR, RUNS_DIR
-    return Path(REPO_ROOT).resolve(), Path(RESULTS_DIR).resolve(), Path(RUNS_DIR).resolve()
+    from analysis.config import REPO_ROOT, RESULTS_DIR
+    return Path(REPO_ROOT).resolve(), Path(RESULTS_DIR).resolve()
 
 
 def _caches():
@@ -147,7 +147,7 @@ def check_out_dir(out_dir, protected=(), area="results", flag="--out", own_names
     Path - ``out_dir`` resolved
     """
     out = Path(out_dir).expanduser().resolve()
-    repo, results, _ = _repo_paths()
+    repo, results = _repo_paths()
     cwd = Path.cwd().resolve()
     if _within(cwd, out):
         raise OutputError("%s %s is the current directory or holds it; give a new folder, "
@@ -252,7 +252,7 @@ def check_out_file(out_file, protected=(), is_own=None, flag="--out", homes=()):
     Path - ``out_file`` resolved
     """
     out = Path(out_file).expanduser().resolve()
-    repo, results, _ = _repo_paths()
+    repo, results = _repo_paths()
     if out.is_dir():
         raise OutputError("%s %s is a folder; give a file name" % (flag, out_file))
     homes = [results] + [Path(h).expanduser().resolve() for h in homes or ()]

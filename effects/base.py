@@ -6,6 +6,8 @@ a kinetics effect provides ``modify_kinetics`` instead, an observation effect (t
 measurement chain) ``observed_factor`` (see effects/template.py and effects/README.md). Parameters are declared once, with units and physical bounds; the scene, the
 kinetic model, the diagnosis and the hidden-effect generator all read that declaration.
 """
+import functools
+
 
 
 class _Declared(object):
@@ -405,21 +407,16 @@ def accepted_keywords(fn, kwargs):
     return {k: v for k, v in kwargs.items() if k in names}
 
 
-_KEYWORD_NAMES = {}
-
-
+@functools.lru_cache(maxsize=None)
 def _keyword_names(fn):
     """The names ``fn`` takes by keyword (None: any, a ``**kwargs``), read once per function
     (a fit asks for an observation effect's factor at every point)."""
-    hit = _KEYWORD_NAMES.get(fn, False)
-    if hit is False:
-        import inspect
-        params = inspect.signature(fn).parameters.values()
-        hit = (None if any(p.kind == p.VAR_KEYWORD for p in params) else
-               frozenset(p.name for p in params
-                         if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)))
-        _KEYWORD_NAMES[fn] = hit
-    return hit
+    import inspect
+    params = inspect.signature(fn).parameters.values()
+    if any(p.kind == p.VAR_KEYWORD for p in params):
+        return None
+    return frozenset(p.name for p in params
+                     if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY))
 
 
 def nonnegative_array(name, x):
