@@ -9,7 +9,6 @@ kinetic model, the diagnosis and the hidden-effect generator all read that decla
 import functools
 
 
-
 class _Declared(object):
     """An effect's declaration and its validated parameters (shared by both kinds)."""
 
