@@ -351,6 +351,23 @@ def test_the_modes_spread_moves_the_observables_of_one_condition_together(moded)
     assert K[i, j] / (se[i] * se[j]) < -0.3
 
 
+
+def test_a_search_without_correlations_gets_the_same_means_and_sds(moded):
+    """The design's candidate search asks for the mixture's means and sds without the
+    emulators' correlations (corr=False): bit for bit what the full prediction gives, at
+    points on both sides of the modes' boundary; the correlations are then absent."""
+    m = moded["split"]
+    rng = np.random.default_rng(3)
+    b = m.space.bounds()
+    pts = pd.DataFrame({n: rng.uniform(*b[n], 40) if n in m.space.base_names else 0.0
+                        for n in m.space.names})
+    full, fast = m.dem_parts(pts), m.dem_parts(pts, corr=False)
+    assert set(full) == set(fast)
+    for o in full:
+        for a in ("mean", "latent_sd", "chaos_sd"):
+            assert np.array_equal(getattr(full[o], a), getattr(fast[o], a)), (o, a)
+        assert full[o].latent_corr is not None and fast[o].latent_corr is None
+    assert len(m.mode_classifier_.modes_) > 1
 def test_a_mode_too_rare_to_emulate_is_left_out(moded):
     """Three runs of a rare motion (the ball at rest: speed and rate near 0) beside the toy's
     modes: left out of the model - its predictions are those without them to rounding - and
