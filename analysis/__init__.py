@@ -9,22 +9,22 @@ ignored; once the command's module has started, it hands Ctrl-C back to Python u
 stop) applies as before.
 
 The same numbers on every machine: the loop's path through its waves and fits turns on the last
-digits of its linear algebra (a fit in a flat direction of the likelihood), and NumPy's and
-OpenBLAS's kernels are picked at run time by the processor - AVX-512 ones here, AVX2 ones
-there, each rounding its own way. Before NumPy is loaded this package pins the AVX2 + FMA set
-on every x86-64 processor that has it (OpenBLAS's Haswell kernels, NumPy's dispatch up to
-X86_V3) and one BLAS thread, so a committed run table replays to the same fits everywhere; a
-variable the user has set is left as it is (``OPENBLAS_CORETYPE``, ``NPY_DISABLE_CPU_FEATURES``,
-``OPENBLAS_NUM_THREADS``). Imports only ``os``, ``signal`` and ``sys``.
+digits of its linear algebra (a fit in a flat direction of the likelihood), and OpenBLAS picks
+its kernels at run time by the processor - AVX-512 ones (SkylakeX) here, AVX2 ones (Haswell)
+there, each rounding its own way. Before NumPy is loaded this package pins OpenBLAS's Haswell
+kernels and one BLAS thread on every x86-64 processor that has AVX2 and FMA, so a committed run
+table replays to the same fits; a variable the user has set is left as it is
+(``OPENBLAS_CORETYPE``, ``OPENBLAS_NUM_THREADS``). NumPy's own SIMD dispatch is left to the
+processor: on Table 3's first fit AVX-512 or AVX2 there moves the restitution from 0.28749741
+to 0.28748787, where the BLAS kernels moved it to 0.2913 (docs/loop.md, "Across machines").
+Imports only ``os``, ``signal`` and ``sys``.
 """
 import os as _os
 import signal as _signal
 import sys as _sys
 
 #: the numeric kernels every machine uses (see the module docstring): variable -> value
-PINNED_KERNELS = {"OPENBLAS_CORETYPE": "Haswell",
-                  "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
-                  "OPENBLAS_NUM_THREADS": "1"}
+PINNED_KERNELS = {"OPENBLAS_CORETYPE": "Haswell", "OPENBLAS_NUM_THREADS": "1"}
 
 
 def _cpu_flags(path="/proc/cpuinfo") -> set:

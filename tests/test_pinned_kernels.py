@@ -1,5 +1,6 @@
-"""The numeric kernels are pinned before NumPy loads (analysis/__init__.py): the same AVX2 + FMA
-kernels on every x86-64 processor that has them, one BLAS thread, a user's own setting kept."""
+"""OpenBLAS's kernels are pinned before NumPy loads (analysis/__init__.py): the Haswell (AVX2 +
+FMA) kernels on every x86-64 processor that has them, one BLAS thread, a user's own setting
+kept."""
 import json
 import os
 import subprocess
@@ -15,10 +16,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_pins_only_where_the_processor_runs_them_and_keeps_the_users_setting():
     env = {"OPENBLAS_NUM_THREADS": "4"}
-    assert pin_kernels(env, flags={"sse2", "avx2", "fma"}) == {
-        k: v for k, v in PINNED_KERNELS.items() if k != "OPENBLAS_NUM_THREADS"}
-    assert env["OPENBLAS_NUM_THREADS"] == "4"
-    assert env["OPENBLAS_CORETYPE"] == "Haswell"
+    assert pin_kernels(env, flags={"sse2", "avx2", "fma"}) == {"OPENBLAS_CORETYPE": "Haswell"}
+    assert env == {"OPENBLAS_NUM_THREADS": "4", "OPENBLAS_CORETYPE": "Haswell"}
+    env = {}
+    assert pin_kernels(env, flags={"avx512f", "avx2", "fma"}) == PINNED_KERNELS == env
     for flags in ({"sse2", "avx"}, {"avx2"}, set()):         # no AVX2 + FMA: nothing set
         env = {}
         assert pin_kernels(env, flags=flags) == {} and env == {}
