@@ -332,19 +332,15 @@ class EmulatedTwin:
                 if m is not None}
 
     @staticmethod
-    def _mixed(per, P, sd=True) -> dict:
+    def _mixed(per, P) -> dict:
         """{observable: Prediction of shape (n_points, n_conditions)} of the modes' mixture
-        (:func:`analysis.emulator.mix_modes`) from :meth:`mode_parts` (``sd=False``: the
-        means only, the sds zero)."""
+        (:func:`analysis.emulator.mix_modes`) from :meth:`mode_parts`."""
         modes = list(per)
         n_p, n_c, _ = P.shape
         out = {}
         for o in per[modes[0]]:
             parts = [per[k][o] for k in modes]
-            if not sd:
-                m = np.sum(P * np.stack([q.mean for q in parts], axis=2), axis=2)
-                out[o] = Prediction(m, np.zeros_like(m), np.zeros_like(m))
-            elif len(parts) == 1:
+            if len(parts) == 1:
                 out[o] = parts[0]
             else:
                 corr = parts[0].latent_corr is not None
@@ -359,10 +355,10 @@ class EmulatedTwin:
                                     mode_dev=p.mode_dev[:, 0].reshape(n_p, n_c, -1))
         return out
 
-    def dem_parts(self, points, sd=True, corr=True) -> dict:
+    def dem_parts(self, points, corr=True) -> dict:
         """{observable: Prediction of shape (n_points, n_conditions)} of the modes' mixture
-        (``sd=False``: the means only, the sds zero; ``corr=False``: no ``latent_corr``)."""
-        return self._mixed(*self.mode_parts(points, corr=corr and sd), sd=sd)
+        (``corr=False``: no ``latent_corr``)."""
+        return self._mixed(*self.mode_parts(points, corr=corr))
 
     def point_vector(self, theta, effects=None) -> np.ndarray:
         """One design point as an array in the order of ``space.names`` (base parameters from
