@@ -124,8 +124,9 @@ def load_jar(cfg):
         tri, info, scale = mesh_for_config(jar_config(cfg), path)
     except ConfigError:
         raise
-    except ValueError as exc:   # impossible parametric dimensions
-        raise ConfigError("parametric jar: %s" % exc)
+    except ValueError as exc:   # an unreadable STL or impossible parametric dimensions
+        what = "parametric jar" if cfg.get("jar_inner_diameter_m") is not None else "jar STL"
+        raise ConfigError("%s: %s" % (what, exc))
     if info.pop("source") == "parametric":
         info["stl_path"] = "parametric"
     else:
