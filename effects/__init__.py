@@ -6,6 +6,7 @@ scene, 'kinetics' for the yield model, 'observation' for the measurement chain, 
 all). ``diagnose_entries()`` lists the effects'
 diagnose entries (the candidates of analysis.catalog). Standard library only.
 """
+import functools
 import importlib
 import math
 import os
@@ -20,10 +21,16 @@ _HERE = os.path.dirname(os.path.abspath(__file__))
 _NOT_EFFECTS = {"__init__", "base", "template"}
 
 
+@functools.lru_cache(maxsize=1)
+def _listed():
+    return tuple(sorted(f[:-3] for f in os.listdir(_HERE)
+                        if f.endswith(".py") and f[:-3] not in _NOT_EFFECTS))
+
+
 def available():
-    """Names of the effect modules in this folder."""
-    return sorted(f[:-3] for f in os.listdir(_HERE)
-                  if f.endswith(".py") and f[:-3] not in _NOT_EFFECTS)
+    """Names of the effect modules in this folder (listed once a process: the likelihood's hot
+    path asks for them at every prediction with an observation effect)."""
+    return list(_listed())
 
 
 def declaration(name):
