@@ -127,6 +127,18 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
     row["chi2_dof_calibrated"] = float(st.get("calibrated", np.nan))
     row["chi2_dof_last"] = float(st[model_stages[-1]])
     row["chi2_dof_twin_rerun"] = float(st.get("twin rerun", np.nan))
+    # the staircase falls from calibrated to final, or stays within a chi2/dof's noise there
+    # (2 sds of a chi2/dof: 2 sqrt(2 / dof))
+    if "calibrated" in st.index:
+        dof = staircase.drop_duplicates("stage", keep="last").set_index("stage").get("dof")
+        noise = (2.0 * np.sqrt(2.0 / float(dof[model_stages[-1]]))
+                 if dof is not None and float(dof[model_stages[-1]]) > 0 else 0.0)
+        row["final_not_above_calibrated"] = bool(
+            row["chi2_dof_last"] <= row["chi2_dof_calibrated"] + noise)
+    # the emulator's prediction at the last rerun's point against that rerun's means, before
+    # they joined it (the loop's p; >= 0.01: within the emulator's stated uncertainty)
+    vs = ((loop_info.get("reruns") or [{}])[-1].get("emulator_vs_twin") or {})
+    row["emulator_vs_twin_p"] = float(vs.get("p", np.nan))
     row["new_runs"] = loop_info.get("new_runs")
     row["wall_s"] = loop_info.get("wall_s")
     return row
@@ -457,11 +469,20 @@ def goal_lines(summ) -> list:
                  + ", ".join("%s %d / %d" % (c[:-len("_base_covered")],
                                             summ[c].dropna().astype(bool).sum(),
                                             summ[c].notna().sum()) for c in base))
-    L.append("chi2/dof after the last add: median %.2f (goal 0.8-1.3), <= 1.5 in %d / %d "
+    L.append("chi2/dof after the last add: median %.2f (goal 0.8-1.2), <= 1.5 in %d / %d "
              "(goal >= 90 %%)" % (last.median(), (last <= 1.5).sum(), len(last)))
     L.append("a decoy (%s) named: %d / %d (goal never)" % (", ".join(DECOYS), decoy.sum(),
                                                           len(summ)))
     L.append("twin rerun chi2/dof: median %.2f" % summ["chi2_dof_twin_rerun"].median())
+    if "emulator_vs_twin_p" in summ:
+        p = summ["emulator_vs_twin_p"].dropna()
+        L.append("the emulator at the final point agrees with the twin rerun there (p >= 0.01, "
+                 "its stated uncertainty): %d / %d (goal every dataset)" % ((p >= 0.01).sum(),
+                                                                           len(p)))
+    if "final_not_above_calibrated" in summ:
+        f = summ["final_not_above_calibrated"].dropna().astype(bool)
+        L.append("the staircase falls from calibrated to final (or stays within 2 sqrt(2 / dof) "
+                 "of it): %d / %d (goal every dataset)" % (f.sum(), len(f)))
     return L
 
 

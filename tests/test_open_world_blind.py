@@ -236,6 +236,29 @@ def test_suite_scores_and_goal_lines_count_what_they_claim():
     assert "restitution 0 / 1, static_friction 1 / 1" in L
 
 
+def test_goal_lines_check_the_rerun_and_the_staircase():
+    """The last rerun's emulator-vs-twin p and the staircase from calibrated to final: a rise
+    within 2 sqrt(2 / dof) of a chi2/dof counts as not above, one beyond it does not; a loop
+    without reruns is not counted."""
+    import pandas as pd
+    from analysis.open_suite import goal_lines, score
+    stairs = lambda final: pd.DataFrame({
+        "stage": ["baseline", "calibrated", "twin rerun", "refitted on the twin reruns"],
+        "chi2_dof": [3.0, 1.0, 1.1, final], "dof": [66, 60, 60, 50]})
+    diag = pd.DataFrame(columns=["effect", "rank", "significant", "strength", "strength_se"])
+    t = {"effects": {}, "base_config": {}}
+    info = lambda *ps: {"reruns": [{"emulator_vs_twin": {"p": p}} for p in ps]}
+    noise = 2.0 * (2.0 / 50) ** 0.5                                # 0.4
+    rows = [score("a", info(1e-4, 0.5), diag, stairs(1.0 + 0.9 * noise), t),
+            score("b", info(0.5, 0.003), diag, stairs(1.0 + 1.1 * noise), t),
+            score("c", {}, diag, stairs(0.9), t)]
+    assert [r["final_not_above_calibrated"] for r in rows] == [True, False, True]
+    assert rows[0]["emulator_vs_twin_p"] == 0.5 and rows[1]["emulator_vs_twin_p"] == 0.003
+    L = "\n".join(goal_lines(pd.DataFrame(rows)))
+    assert "agrees with the twin rerun there (p >= 0.01, its stated uncertainty): 1 / 2" in L
+    assert "or stays within 2 sqrt(2 / dof) of it): 2 / 3" in L
+
+
 def test_score_only_scores_what_ran_and_draws_the_figure(tmp_path):
     """--score-only on an output folder holding one of the 20 no-effect loops (its files as
     the loop writes them: loop.json, diagnosis.csv, staircase.csv, parameters.csv): that one
