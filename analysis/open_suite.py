@@ -477,8 +477,9 @@ def goal_lines(summ) -> list:
     if "emulator_vs_twin_p" in summ:
         p = summ["emulator_vs_twin_p"].dropna()
         L.append("the emulator at the final point agrees with the twin rerun there (p >= 0.01, "
-                 "its stated uncertainty): %d / %d (goal every dataset)" % ((p >= 0.01).sum(),
-                                                                           len(p)))
+                 "its stated uncertainty): %d / %d (goal every dataset; the loop's test, on "
+                 "the mixture over motion modes: weak where a condition's mode is uncertain)"
+                 % ((p >= 0.01).sum(), len(p)))
     if "final_not_above_calibrated" in summ:
         f = summ["final_not_above_calibrated"].dropna().astype(bool)
         L.append("the staircase falls from calibrated to final (or stays within 2 sqrt(2 / dof) "
