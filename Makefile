@@ -19,8 +19,7 @@ help:
 	@echo "make test   - the test suite (installs YADE and the venv when missing)"
 	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset -> OUT/report.md, diagnosis.csv, staircase.csv, loop.json"
 	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
-	@echo "make open-world - the blind suite (20 no-effect, 12 one-, 6 two-effect, 10 measurement-chain datasets) and the loop on each at wave 0 from the run table (about 2 h on 1 core) -> results/open_world/{nulls,effects,pairs,chain}/, loop/README.md"
-	@echo "make open-world-full [ONLY=\"null_p07 eff_p01\"] - the same datasets through the whole loop (refinement and focus waves, twin reruns; about 2 h a dataset on 1 worker: 120-260 new twin runs and 30 min of analysis; resumable) -> results/open_world/full_loop/"
+	@echo "make open-world [ONLY=\"null_p07 eff_p01\"] - the blind suite (20 no-effect, 12 one-, 6 two-effect, 10 measurement-chain datasets) and the whole loop on each (refinement and focus waves, twin reruns; about 2 h a dataset on 1 worker: 70-260 new twin runs and 30 min of analysis; resumable; open-world-full: the same) -> results/open_world/{nulls,effects,pairs,chain}/, full_loop/README.md"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
 	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
 	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 1 h on 1 worker; cached, resumable; the committed run table holds their summaries) -> results/studies/vf_trend/"
@@ -108,27 +107,23 @@ loop: setup
 # the blind suite: 20 no-effect, 12 one-effect and 6 two-effect datasets at conditions the paper
 # never ran (results/open_world/{nulls,effects,pairs}; about 6 twin runs each, cached) and 10
 # with a measurement chain hidden (results/open_world/chain, made from null_p10..19's tracks, no
-# twin run), then the loop on each with the five chain entries among its candidates, scored
-# against the hidden truth (results/open_world/loop). The loops use wave 0 only (24 points + the
-# reference point x 3 seeds at the suite's six conditions: 162 runs, all in the committed run
-# table), no focus wave, no reruns: no new twin run, about 2 min of analysis a dataset on one
-# core; resumable (a dataset whose loop.json exists is not rerun). The whole loop (waves, focus,
-# reruns) costs 70-150 new twin runs a dataset: python -m analysis.open_suite without the flags.
+# twin run), then the whole loop on each (the refinement waves, the focus wave and the twin
+# reruns with their confirmation rounds) with the five chain entries among its candidates,
+# scored against the hidden truth: results/open_world/full_loop/. Wave 0 (162 runs) is in the
+# committed run table; the rest costs 70-260 new twin runs a dataset, about 25 s each on 1
+# worker, and 30 min of analysis; resumable (a dataset whose loop.json exists is kept), partial
+# until all 48 ran (its NOTES.md says which); ONLY="null_p07 eff_p01" runs those.
+# open-world-full: the same (its earlier name).
 OWD = $(VPY) -m analysis.studies.open_world_data --only none --films none
 open-world: setup
 	$(OWD) --out results/open_world/nulls --nulls 20
 	$(OWD) --out results/open_world/effects --effects 12
 	$(OWD) --out results/open_world/pairs --pairs 6
 	$(OWD) --out results/open_world/chain --chain 10
-	$(VPY) -m analysis.open_suite --waves 0 --focus-points 0 --no-rerun $(CHAIN)
-
-# the same datasets through the whole loop (the refinement waves, the focus wave and the twin
-# reruns with their confirmation rounds: 120-260 new twin runs a dataset, about 25 s each on 1
-# worker, and 30 min of analysis (eff_p01 from the cache, 2026-12-05); resumable, a dataset whose loop.json exists is kept; ONLY="null_p07 eff_p01" runs
-# those): results/open_world/full_loop/, partial until all 48 ran (its NOTES.md says which)
-open-world-full: setup
 	$(VPY) -m analysis.open_suite --out results/open_world/full_loop --workers 1 \
 	  $(CHAIN) $(foreach n,$(ONLY),--only $(n))
+
+open-world-full: open-world
 
 # the one emulator of the twin (analysis/emulator.py) against real twin runs: wave 0 of the
 # design at a blind dataset's conditions, leave-out of whole points and the loop's committed runs

@@ -27,7 +27,7 @@ atomically and the folder is marked.
 Example::
 
     python -m analysis.open_suite --datasets results/open_world/effects \\
-        --out results/open_world/loop --only eff_p01
+        --out results/open_world/full_loop --only eff_p01
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ from analysis.config import RESULTS_DIR
 from analysis.plotting.open_suite_plots import write_open_suite_figure
 from analysis.report import open_suite_page
 
-OUT_DIR = RESULTS_DIR / "open_world" / "loop"
+OUT_DIR = RESULTS_DIR / "open_world" / "full_loop"
 #: the suite's figure in ``--out``: strengths against the truth, chi2/dof per dataset
 FIGURE = "open_suite.png"
 #: a hand-written note in ``--out`` (how the loops were run, what the misses mean), appended to

@@ -61,11 +61,9 @@ IGNORED_FOLDERS = ("runs", "runs_fake", "track_cache")
 FOLDER_INDEX = {
     "loop": ("the loop on a dataset, one folder per dataset (report.md, the tables, figures)",
              "`analysis.loop` (make loop)"),
-    "open_world": ("the loop on blind open-world datasets whose truth is known (loop: wave 0 "
-                   "on all 48, made before the fits' global starts and the misfit intervals "
-                   "of 2026-12-05; full_loop: the whole loop with its twin reruns, partial), "
-                   "and the datasets",
-                   "`analysis.open_suite` (make open-world, make open-world-full)"),
+    "open_world": ("the whole loop on blind open-world datasets whose truth is known "
+                   "(full_loop, partial until all 48 ran), and the datasets",
+                   "`analysis.open_suite` (make open-world)"),
     "table3_chain": ("the loop on Table 3 with the measurement chain among its candidates, "
                      "one folder per assumed v sd (sd0.005, sd0.01, sd0.02); made before the "
                      "fits' global starts and the misfit intervals of 2026-12-05",
