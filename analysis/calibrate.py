@@ -53,20 +53,6 @@ from analysis.parameter_space import APPARATUS, CALIBRATED, PRIORS, parse_free
 N_WALKERS, N_STEPS, N_BURN = 32, 1200, 400
 
 
-def load_measurements(dataset_dir=PAPER_TABLE3_DIR):
-    """A measurement dataset (validated by ``analysis.measurements.load_dataset``) as one wide
-    table: condition_id, frequency_hz, ball_diameter_m, v_mean_m_s, v_mean_sd_m_s, f_col_hz,
-    f_col_sd_hz and any other summary column (the paper's DEM column); ``attrs["velocity_frame"]``.
-
-    Raises
-    ------
-    MeasurementError (analysis.measurements.DatasetError) naming the file, row and column of
-    a missing or bad value, or a condition without a summary row.
-    """
-    from analysis.measurements import summary_wide
-    return summary_wide(load_dataset(dataset_dir), source=dataset_dir)
-
-
 @dataclass
 class CalibrationResult:
     """The posterior of the calibrated parameters and what the twin says at it.

@@ -45,9 +45,12 @@ from analysis.run_configs import condition_configs
 
 
 def measured_table(dataset_dir=PAPER_TABLE3_DIR):
-    """Table 3 as one frame: condition_id, frequency_hz, ball_diameter_mm, measured columns."""
+    """A measurement dataset (Table 3 by default) as one wide table: condition_id,
+    frequency_hz, ball_diameter_mm and _m, the summary's columns (the paper's DEM column);
+    ``attrs["velocity_frame"]``. DatasetError naming the folder, file, row and column of a bad
+    value or a condition without a summary row."""
     from analysis.measurements import load_dataset, summary_wide
-    return summary_wide(load_dataset(dataset_dir))
+    return summary_wide(load_dataset(dataset_dir), source=dataset_dir)
 
 
 def demo_configs(conditions, replicates, record_s, base=None):

@@ -317,15 +317,6 @@ def with_run_sd(obs: pd.DataFrame, run_sd: pd.Series) -> pd.DataFrame:
     return out
 
 
-def model_se_from_predictions(predictions: pd.DataFrame) -> pd.Series:
-    """Standard error sd / sqrt(n_replicates) of a predictions table (condition_id, observable,
-    mean, sd, n_replicates), as a Series indexed by (condition_id, observable) for
-    ``diagnose(model_se=...)``."""
-    p = predictions
-    se = p["sd"].to_numpy(float) / np.sqrt(p["n_replicates"].to_numpy(float))
-    return pd.Series(se, index=pd.MultiIndex.from_frame(p[["condition_id", "observable"]]))
-
-
 def prefetcher(predict):
     """The batch hook of a model's ``predict``, or None: ``predict.prefetch`` or, for a bound
     method ``model.predict``, ``model.prefetch`` - called with every (theta, effects) a
@@ -903,7 +894,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     model_se : None, float, Series or callable
         the twin's replicate noise: standard error of its mean prediction. A float is read as a
         fraction of the baseline prediction; a Series is indexed by (condition_id, observable)
-        (see :func:`model_se_from_predictions`); a callable (theta, effects) -> Series is the
+        (sd / sqrt(replicates) per observation); a callable (theta, effects) -> Series is the
         model's uncertainty where it is asked (an emulator's), carried into every fit's
         likelihood (with its log-sigma term). None: a deterministic model.
     crn_correlation : float in [0, 1]

@@ -5,6 +5,7 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from analysis import calibrate as cal
+from analysis.demo import measured_table
 from analysis.config import PAPER_TABLE3_DIR
 from analysis.emulator import GPEmulator
 from analysis.fake_twin import FAKE_FCOL_SD_HZ, FAKE_V_REL_SD
@@ -20,7 +21,7 @@ def one_blas_thread():
 
 
 def test_load_paper_table3():
-    meas = cal.load_measurements(PAPER_TABLE3_DIR)
+    meas = measured_table(PAPER_TABLE3_DIR)
     assert len(meas) == 8 and meas.attrs["velocity_frame"] == "lab"
     assert np.allclose(sorted(meas["ball_diameter_m"].unique()), [0.0175, 0.0206])
     assert (meas["f_col_hz"] == 2 * meas["frequency_hz"]).all()
@@ -100,7 +101,7 @@ def test_bad_measurements_raise_clear_error(tmp_path, fname, text, match):
         (tmp_path / f).write_text((PAPER_TABLE3_DIR / f).read_text())
     (tmp_path / fname).write_text(text)
     with pytest.raises(cal.MeasurementError, match=match):
-        cal.load_measurements(tmp_path)
+        measured_table(tmp_path)
 
 
 def test_cli_bad_dataset_exit_2(tmp_path, capsys):

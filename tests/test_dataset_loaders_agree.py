@@ -233,13 +233,13 @@ def test_malformed_conditions_same_error_both_paths(gen_dir):
 
 
 def test_summary_wide_is_the_one_wide_table_and_names_a_missing_summary_row(tmp_path):
-    """calibrate.load_measurements and demo.measured_table read the same table; a condition
-    without a summary row is one error naming the condition (and the folder, for calibrate)."""
+    """demo.measured_table is summary_wide on the loaded dataset; a condition without a
+    summary row is one error naming the condition and the folder."""
     import shutil
-    from analysis import calibrate, demo
+    from analysis import demo
     from analysis.config import PAPER_TABLE3_DIR
-    a, b = demo.measured_table(), calibrate.load_measurements()
-    assert a.equals(b)
+    a = demo.measured_table()
+    assert a.equals(m.summary_wide(m.load_dataset(PAPER_TABLE3_DIR)))
     assert (a["ball_diameter_m"] == a["ball_diameter_mm"] / 1000.0).all()
     assert a["v_mean_dem_paper_m_s"].dtype.kind == "f"
     d = tmp_path / "ds"
@@ -249,5 +249,5 @@ def test_summary_wide_is_the_one_wide_table_and_names_a_missing_summary_row(tmp_
     (d / "summary.csv").write_text("\n".join(lines[:3] + lines[4:]) + "\n")
     with pytest.raises(m.DatasetError, match="%s.*has no measurement.*no row in summary.csv"
                        % gone) as e:
-        calibrate.load_measurements(d)
+        demo.measured_table(d)
     assert str(d) in str(e.value)

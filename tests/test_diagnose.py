@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from analysis.diagnose import (BaseParameter, Diagnosis, Effect, Problem, diagnose,
-                               model_se_from_predictions, residual_structure)
+                               residual_structure)
 
 FREQS = [22.5, 25.0, 27.5, 30.0]
 DIAMS = [15.0, 17.5, 20.6]
@@ -229,14 +229,6 @@ def test_fd_noise_lowers_identifiability():
     t = noisy.table.set_index("effect")
     assert np.isfinite(t["signature_snr"]).all()
     assert not t["identifiable"].any()       # 4x noise, independent runs: signatures drown
-
-
-def test_model_se_from_predictions():
-    p = pd.DataFrame({"condition_id": ["a", "a"], "observable": ["v_mean_m_s", "f_col_hz"],
-                      "mean": [2.0, 50.0], "sd": [0.06, 1.2], "n_replicates": [3, 4]})
-    se = model_se_from_predictions(p)
-    assert se[("a", "v_mean_m_s")] == pytest.approx(0.06 / np.sqrt(3))
-    assert se[("a", "f_col_hz")] == pytest.approx(0.6)
 
 
 def test_bad_inputs():
