@@ -8,12 +8,9 @@ through this module:
 
 * :func:`physics_table` - the physics of each condition, with the defaults filled in;
 * :func:`physics_key` - one canonical text per physics (``f26_d19``, ``f26_d19_a13.1``), the key
-  under which twin runs for a condition are stored;
-* :func:`match_conditions` - which rows of one table have the same physics as rows of another,
-  within the tolerances below (never by id).
-
-Tolerances (:data:`TOLERANCES`): 0.005 Hz, 0.005 mm of ball diameter, 0.005 mm of stroke: below
-what any MM400 user sets or measures, and above the round-off of a CSV.
+  under which twin runs for a condition are stored: two conditions are the same physics when
+  their keys are equal (0.01 Hz, 0.01 mm: below what any MM400 user sets or measures, above the
+  round-off of a CSV), never by id.
 """
 from __future__ import annotations
 
@@ -22,8 +19,6 @@ import math
 import numpy as np
 import pandas as pd
 
-#: largest difference that still counts as the same physics
-TOLERANCES = {"frequency_hz": 0.005, "ball_diameter_mm": 0.005, "amplitude_mm": 0.005}
 #: the scene holds one ball (the paper's setting); n_balls other than 1 is refused
 SUPPORTED_N_BALLS = (1,)
 
@@ -86,46 +81,6 @@ def physics_key(frequency_hz, ball_diameter_mm, amplitude_mm=None, n_balls=1) ->
     if int(n_balls) != 1:
         k += "_n%d" % int(n_balls)
     return k
-
-
-def same_physics(a, b, default_amplitude_mm=None) -> bool:
-    """True when rows ``a`` and ``b`` (mappings with frequency_hz, ball_diameter_mm and
-    optionally amplitude_mm, n_balls) describe the same physics. A stroke stated on one side only
-    is compared with ``default_amplitude_mm`` (None: an unstated stroke matches any)."""
-    if abs(float(a["frequency_hz"]) - float(b["frequency_hz"])) > TOLERANCES["frequency_hz"]:
-        return False
-    if abs(float(a["ball_diameter_mm"]) - float(b["ball_diameter_mm"])) > \
-            TOLERANCES["ball_diameter_mm"]:
-        return False
-    if int(a.get("n_balls", 1) or 1) != int(b.get("n_balls", 1) or 1):
-        return False
-    aa, ab = a.get("amplitude_mm", np.nan), b.get("amplitude_mm", np.nan)
-    aa = default_amplitude_mm if aa is None or not np.isfinite(aa) else aa
-    ab = default_amplitude_mm if ab is None or not np.isfinite(ab) else ab
-    if aa is None or ab is None:
-        return True
-    return abs(float(aa) - float(ab)) <= TOLERANCES["amplitude_mm"]
-
-
-def match_conditions(conditions: pd.DataFrame, known: pd.DataFrame,
-                     default_amplitude_mm=None) -> dict:
-    """condition_id of ``conditions`` -> condition_id of the row of ``known`` with the same
-    physics, or None where ``known`` has none (never matched by id text).
-
-    Parameters
-    ----------
-    conditions, known : DataFrame - condition_id, frequency_hz, ball_diameter_mm
-        [, amplitude_mm, n_balls]
-    default_amplitude_mm : float or None - the stroke of a row that states none
-    """
-    a = physics_table(conditions)
-    b = physics_table(known)
-    brows = b.to_dict("records")
-    out = {}
-    for r in a.to_dict("records"):
-        hit = [k for k in brows if same_physics(r, k, default_amplitude_mm)]
-        out[r["condition_id"]] = hit[0]["condition_id"] if hit else None
-    return out
 
 
 def label(frequency_hz, ball_diameter_mm, amplitude_mm=None) -> str:

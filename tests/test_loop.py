@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from analysis import loop
-from analysis.conditions import ConditionError, match_conditions, physics_key, physics_table
+from analysis.conditions import ConditionError, physics_key, physics_table
 from analysis.diagnose import BaseParameter, Effect
 from analysis.fake_twin import run_fake_twin
 from analysis.measurements import load_dataset
@@ -27,21 +27,17 @@ SMALL = ["--points", "12", "--waves", "1", "--per-wave", "4", "--focus-points", 
 
 # --------------------------------------------------------------------------- physics, not names
 
-def test_conditions_match_by_physics_not_ids():
-    paper = pd.DataFrame({"condition_id": ["f22.5_d20.6", "f30_d17.5"],
-                          "frequency_hz": [22.5, 30.0], "ball_diameter_mm": [20.6, 17.5]})
-    # other ids, same physics (and CSV round-off); an id that lies about its physics
-    mine = pd.DataFrame({"condition_id": ["slow_big", "f30_d17.5", "fast_small"],
-                         "frequency_hz": [22.500001, 26.0, 30.0],
-                         "ball_diameter_mm": [20.6, 19.0, 17.5]})
-    m = match_conditions(mine, paper)
-    assert m == {"slow_big": "f22.5_d20.6", "f30_d17.5": None, "fast_small": "f30_d17.5"}
-    # a stated stroke must match too (an unstated one takes the default)
-    mine2 = mine.assign(amplitude_mm=[12.7, np.nan, 13.5])
-    assert match_conditions(mine2, paper, default_amplitude_mm=12.7) == {
-        "slow_big": "f22.5_d20.6", "f30_d17.5": None, "fast_small": None}
+def test_conditions_are_keyed_by_physics_not_ids():
+    """The key of a condition is its physics: CSV round-off gives the same key, a stated stroke
+    and another ball count give another, the id text plays no part."""
+    a = physics_table(pd.DataFrame({"condition_id": ["slow_big", "f30_d17.5"],
+                                    "frequency_hz": [22.500001, 26.0],
+                                    "ball_diameter_mm": [20.6, 19.0]}))
+    assert list(a["physics_key"]) == ["f22.5_d20.6", "f26_d19"]
     assert physics_key(26, 19) == "f26_d19"
     assert physics_key(22.5, 20.6, 13.1) == "f22.5_d20.6_a13.1"
+    assert physics_key(22.5, 20.6, float("nan")) == "f22.5_d20.6"
+    assert physics_key(26, 19, n_balls=2) == "f26_d19_n2"
 
 
 def test_conditions_refused_with_a_clear_error():
