@@ -122,7 +122,8 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
         iv = _interval(parameters, k)
         if iv is not None:
             row["%s_base_covered" % k] = bool(iv[0] <= float(v) <= iv[1])
-    st = staircase.drop_duplicates("stage", keep="last").set_index("stage")["chi2_dof"]
+    stages = staircase.drop_duplicates("stage", keep="last").set_index("stage")
+    st = stages["chi2_dof"]
     model_stages = [s for s in st.index if s != "twin rerun"]
     row["chi2_dof_calibrated"] = float(st.get("calibrated", np.nan))
     row["chi2_dof_last"] = float(st[model_stages[-1]])
@@ -130,9 +131,8 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
     # the staircase falls from calibrated to final, or stays within a chi2/dof's noise there
     # (2 sds of a chi2/dof: 2 sqrt(2 / dof))
     if "calibrated" in st.index:
-        dof = staircase.drop_duplicates("stage", keep="last").set_index("stage").get("dof")
-        noise = (2.0 * np.sqrt(2.0 / float(dof[model_stages[-1]]))
-                 if dof is not None and float(dof[model_stages[-1]]) > 0 else 0.0)
+        dof = float(stages["dof"][model_stages[-1]]) if "dof" in stages else 0.0
+        noise = 2.0 * np.sqrt(2.0 / dof) if dof > 0 else 0.0
         row["final_not_above_calibrated"] = bool(
             row["chi2_dof_last"] <= row["chi2_dof_calibrated"] + noise)
     # the emulator's prediction at the last rerun's point against that rerun's means, before
