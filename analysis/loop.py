@@ -1636,7 +1636,8 @@ def main(argv=None):
         return interrupted_exit("analysis.loop", exc)
 
 
-def _main(argv=None):
+def build_parser() -> argparse.ArgumentParser:
+    """The command's options (``python -m analysis.loop --help``)."""
     ap = _Parser(
         prog="python -m analysis.loop",
         description="The loop on a measurement dataset: build the emulator of the twin at its "
@@ -1731,34 +1732,13 @@ def _main(argv=None):
                     help="[seeds] accepted for earlier command lines; no effect")
     ap.add_argument("--max-reanchor", type=int, default=None,
                     help="[re-anchorings] accepted for earlier command lines; no effect")
-    a = ap.parse_args(argv)
+    return ap
+
+
+def _main(argv=None):
+    a = build_parser().parse_args(argv)
     try:
-        # every option and the output (its parent included) before the dataset is read or
-        # anything planned: a bad value never costs a run
-        check_options(a)
-        for flag in ("diff_replicates", "max_reanchor"):
-            if getattr(a, flag) is not None:
-                print("analysis.loop: note: --%s has no effect since the loop's model is the "
-                      "emulator (no anchor; see CHANGELOG.md)" % flag.replace("_", "-"),
-                      file=sys.stderr)
-        check_out_dir(a.out, [a.dataset])
-        base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
-        extra = optional_effects(a.with_effect, base_config)
-        free = free_parameters(a.free, base_config, extra)
-        ds = load_dataset(a.dataset)
-        for line in ds.warnings:            # accepted, but outside what the twin is tested on
-            print("analysis.loop: warning: %s" % line, file=sys.stderr)
-        physics_table(ds.conditions)
-        pinned_observation(ds)              # a stated chain outside its bounds: before any run
-        if a.v_rel_sd is not None:
-            ds = with_assumed_v_sd(ds, a.v_rel_sd)
-        _, max_effects = dof_limits(ds, a.max_effects, extra, free)
-        if max_effects < a.max_effects:
-            print("analysis.loop: note: at most %d effect(s) added (--max-effects %d): each "
-                  "costs a degree of freedom and the dataset leaves %d beyond the calibration"
-                  % (max_effects, a.max_effects, max_effects + 1), file=sys.stderr)
-        settings = settings_of(a, max_effects, extra, free).check()
-        twin = twin_of(a, base_config)
+        ds, settings, base_config, twin = prepare(a)
         if a.dry_run:
             print("\n".join(plan_lines(ds, settings, base_config, twin)))
             return 0
@@ -1779,6 +1759,37 @@ def _main(argv=None):
                                     for r in res.staircase.itertuples()))
     print("wrote %s" % a.out)
     return 0
+
+
+def prepare(a):
+    """Every check of the parsed command ``a`` before anything runs - the options and the
+    output folder (its parent included) before the dataset is read, then the dataset, its
+    physics and its degrees of freedom: a bad value never costs a run. Returns (dataset,
+    settings, base_config, twin)."""
+    check_options(a)
+    for flag in ("diff_replicates", "max_reanchor"):
+        if getattr(a, flag) is not None:
+            print("analysis.loop: note: --%s has no effect since the loop's model is the "
+                  "emulator (no anchor; see CHANGELOG.md)" % flag.replace("_", "-"),
+                  file=sys.stderr)
+    check_out_dir(a.out, [a.dataset])
+    base_config = run_settings(a.settings, frame=a.frame, record_s=a.record_s)
+    extra = optional_effects(a.with_effect, base_config)
+    free = free_parameters(a.free, base_config, extra)
+    ds = load_dataset(a.dataset)
+    for line in ds.warnings:            # accepted, but outside what the twin is tested on
+        print("analysis.loop: warning: %s" % line, file=sys.stderr)
+    physics_table(ds.conditions)
+    pinned_observation(ds)              # a stated chain outside its bounds: before any run
+    if a.v_rel_sd is not None:
+        ds = with_assumed_v_sd(ds, a.v_rel_sd)
+    _, max_effects = dof_limits(ds, a.max_effects, extra, free)
+    if max_effects < a.max_effects:
+        print("analysis.loop: note: at most %d effect(s) added (--max-effects %d): each "
+              "costs a degree of freedom and the dataset leaves %d beyond the calibration"
+              % (max_effects, a.max_effects, max_effects + 1), file=sys.stderr)
+    settings = settings_of(a, max_effects, extra, free).check()
+    return ds, settings, base_config, twin_of(a, base_config)
 
 
 def twin_of(a, base_config) -> TwinRuns:
