@@ -514,3 +514,48 @@ def test_the_figure_draws_the_interval_the_summary_scored():
     np.testing.assert_allclose([p[1:] for p in pts],
                                [[0.75, 0.4 / 0.6, 0.38 / 0.6, 0.49 / 0.6],
                                 [0.75, 0.4 / 0.6, 0.3804 / 0.6, 0.4196 / 0.6]])
+
+
+def test_the_rerun_is_scored_against_its_own_mode_and_a_shifted_rerun_fails(tmp_path):
+    """rerun_own_mode refits the loop's emulator without the last rerun and scores that
+    rerun's runs against it: on the analytic twin the emulator's stated uncertainty covers its
+    own rerun (p >= 0.01, every (condition, observable) scored); the same rerun with its speeds
+    10 % up (the emulator's sd at 12 design points and the chaos of a 3-run mean, about 3 %
+    together) fails (p < 1e-6), and a loop without a rerun scores NaN."""
+    import shutil
+
+    import pandas as pd
+    from analysis.fake_twin import run_fake_twin
+    from analysis.hidden import make_hidden_dataset
+    from analysis.loop import LoopSettings, write_loop
+    from analysis.open_suite import rerun_own_mode
+    from analysis.twin_runs import TwinRuns
+    conds = pd.DataFrame({"condition_id": ["p%d" % i for i in range(5)],
+                          "frequency_hz": [21.0, 24.0, 27.0, 30.0, 33.0],
+                          "ball_diameter_mm": [16.0, 21.0, 18.0, 20.0, 17.0]})
+    ds_dir, _ = make_hidden_dataset(
+        "null", {}, conditions=conds, replicates=1, seed=3, runner=run_fake_twin,
+        runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "truth",
+        twin_v_rel_sd=0.015, twin_f_col_sd_hz=0.5, progress=False, v_rel_sd=0.01,
+        yield_times_min=())
+    ds = load_dataset(ds_dir)
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
+                    progress=False)
+    res = run_loop(ds, LoopSettings(points=12, waves=0, focus_points=0, null_draws=0,
+                                    confirm_rounds=1, intervals=False, max_effects=0),
+                   twin=twin, progress=False, log=lambda s: None)
+    loop_dir = tmp_path / "loop"
+    write_loop(res, loop_dir, ds)
+    info = json.loads((loop_dir / "loop.json").read_text())
+    own = rerun_own_mode(ds, loop_dir, info)
+    assert own["rerun_mode_n"] == 2 * len(conds), own
+    assert own["rerun_mode_p"] >= 0.01, own
+    shifted = tmp_path / "shifted"
+    shutil.copytree(loop_dir, shifted)
+    runs = pd.read_csv(shifted / "model_runs.csv")
+    rerun = runs["wave"].astype(str) == "confirm 1"
+    runs.loc[rerun, "v_mean_m_s"] *= 1.10
+    runs.to_csv(shifted / "model_runs.csv", index=False)
+    bad = rerun_own_mode(ds, shifted, info)
+    assert bad["rerun_mode_p"] < 1e-6 and bad["rerun_mode_max_abs_z"] > 4.0, bad
+    assert np.isnan(rerun_own_mode(ds, loop_dir, dict(info, reruns=[]))["rerun_mode_p"])
