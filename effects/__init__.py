@@ -144,6 +144,7 @@ def jar_config(cfg):
     """
     out = cfg
     for name in sorted(cfg.get("effects") or {}):
+        declaration(name)                   # an unknown name: ConfigError, not ImportError
         mod = importlib.import_module("effects." + name)
         hook = getattr(mod, "jar_overrides", None)
         if hook is None:

@@ -83,6 +83,9 @@ def work(tmp_path, monkeypatch, track_frame):
     (w / "cfg.json").write_text(json.dumps(QUICK_RUN))
     (w / "in").mkdir()
     (w / "in" / "cfg.json").write_text(json.dumps(QUICK_RUN))
+    (w / "bogus_effect.json").write_text(json.dumps(dict(QUICK_RUN, effects={"bogus": {}})))
+    (w / "bogus_param.json").write_text(json.dumps(dict(QUICK_RUN,
+                                                        effects={"air_drag": {"nope": 1}})))
     (w / "ro").mkdir()
     monkeypatch.chdir(w)
     monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", tmp_path / "fake_runs")
@@ -179,6 +182,12 @@ ROWS = [
      ["--out", "outside results/"], REPO_ROOT / "yade_scripts", [yade]),
     ("mill-out-own-recording-plus-a-stranger", _mill(_own_recording_plus_stranger),
      ["--out", "did not write"], None, [yade]),
+    # --- the scene's run config: an effect it does not know, before any output
+    ("mill-unknown-effect", _mill(lambda w: str(w / "new_run"), lambda w: w / "bogus_effect.json"),
+     ["unknown effect", "bogus"], None, [yade]),
+    ("mill-unknown-effect-parameter",
+     _mill(lambda w: str(w / "new_run"), lambda w: w / "bogus_param.json"),
+     ["effect air_drag", "unknown parameter", "nope"], None, [yade]),
     ("profile-out-foreign-file", ("profile", lambda w: ["--config", str(w / "cfg.json"),
                                                         "--out", str(w / "foreign.csv")]),
      ["--out", "already exists"], None, [yade]),

@@ -207,16 +207,20 @@ def test_run_twin_reports_yade_failure(tmp_path):
 
 @pytest.mark.slow
 def test_yade_batch_runs_a_parameter_table(tmp_path):
-    """The same script under yade-batch: table columns are config keys, one run per line."""
+    """The same script under yade-batch: table columns are config keys, one run per line -
+    the dict of effects and the list of a given start position as analysis.sweep's
+    write_yade_batch_table writes them."""
     if shutil.which("yade-batch") is None:
         pytest.skip("yade-batch not installed")
     out1, out2 = tmp_path / "r1", tmp_path / "r2"
     table = tmp_path / "table.txt"
     # values are Python literals (yade-batch evaluates them): strings are quoted
     table.write_text(
-        "description protocol amplitude_m frequency_hz ball_start record_s seed out\n"
-        "run25 'free' 0.0135 25.0 'random' 0.01 1 'r1'\n"
-        "run30 'free' 0.0135 30.0 'random' 0.01 2 'r2'\n")
+        "description protocol amplitude_m frequency_hz ball_start ball_init_pos_m record_s seed"
+        " effects out\n"
+        "run25 'free' 0.0135 25.0 'random' None 0.01 1 {} 'r1'\n"
+        "run30 'free' 0.0135 30.0 'given' [0.0,0.0,0.0] 0.01 2 {'air_drag':{'drag_scale':0.5}}"
+        " 'r2'\n")
     proc = subprocess.run(["yade-batch", "--job-threads=1", "-j", "2", "--log",
                            str(tmp_path / "@.log"), str(table), str(MILL_SCRIPT)],
                           cwd=str(tmp_path), capture_output=True, text=True,
@@ -226,6 +230,8 @@ def test_yade_batch_runs_a_parameter_table(tmp_path):
     m1 = json.loads((out1 / "meta.json").read_text())
     m2 = json.loads((out2 / "meta.json").read_text())
     assert m1["config"]["frequency_hz"] == 25.0 and m2["config"]["frequency_hz"] == 30.0
+    assert m1["config"]["effects"] == {} and m2["config"]["ball_init_pos_m"] == [0.0, 0.0, 0.0]
+    assert m2["config"]["effects"] == {"air_drag": {"drag_scale": 0.5}}
 
 
 def test_scene_profile_books_every_step_and_engine(tmp_path):

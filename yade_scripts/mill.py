@@ -107,8 +107,8 @@ def config_from_batch_table():
     # yade-batch sets YADE_BATCH=table:line (older YADE: PARAM_TABLE)
     if not (os.environ.get("YADE_BATCH") or os.environ.get("PARAM_TABLE")):
         return None
-    scalar = {k: v[0] for k, v in twin_config.PARAMETERS.items()
-              if k not in ("ball_init_pos_m", "ball_init_vel_m_s")}
+    scalar = {k: v[0] for k, v in twin_config.PARAMETERS.items()}
+    scalar["effects"] = {}      # a column of dict literals, as analysis.sweep writes it
     scalar["out"] = ""          # output folder (relative to yade-batch's working folder)
     scalar["description"] = ""  # yade-batch's job name (log file name); not a config key
     utils.readParamsFromTable(noTableOk=True, **scalar)
@@ -863,6 +863,7 @@ def main(argv=None):
                 raise ConfigError("--config run.json is required (outside yade-batch)")
             cfg = twin_config.load_config(a.config)
             out = a.out
+        load_effects(cfg["effects"])    # unknown effects or parameters: before any output
         if not out:
             out = os.path.join(ROOT, "results", "runs", twin_config.run_id(cfg, ROOT))
         out = os.path.abspath(out)
