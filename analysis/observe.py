@@ -659,7 +659,9 @@ def observe_recording(recording, fps: float | None = None, frame: str = "lab",
 
 def direct_figures(recording, frame: str = "lab") -> dict:
     """The twin's own figures, no camera: true 3-D mean speed, camera-plane (x, z) mean speed,
-    and f_col = end_cap impacts per second over the recorded time.
+    and f_col = the rate of the end-cap collisions in impacts.csv by the scene's own rule
+    (``collision_rate`` of each collision's first contact: (n - 1) / (t_n - t_1), not n / the
+    record length, which moves in steps of 1 / record length).
 
     Returns
     -------
@@ -685,14 +687,15 @@ def direct_figures(recording, frame: str = "lab") -> dict:
     # collisions: re-contacts with the same end belong to one collision (collision_id, written by
     # the scene); recordings without the column count every end-cap contact
     if "collision_id" in imp.columns:
-        n_col = int(pd.Series(imp["collision_id"].to_numpy()[end]).nunique())
+        first = pd.Series(ts[end]).groupby(imp["collision_id"].to_numpy()[end]).min()
     else:
-        n_col = int(end.sum())
+        first = pd.Series(ts[end])
+    n_col = int(len(first))
     m = _ball_mass(rec.meta)
     return {"v_mean_3d_m_s": v3, "v_mean_2d_m_s": v2,
             "e_kin_j": 0.5 * m * v3 ** 2 if m is not None else float("nan"),
-            "f_col_hz": float(n_col / dur), "n_collisions": n_col, "n_end_cap": int(end.sum()),
-            "duration_s": dur}
+            "f_col_hz": float(collision_rate(first.to_numpy(float), dur)[0]),
+            "n_collisions": n_col, "n_end_cap": int(end.sum()), "duration_s": dur}
 
 
 def operator_bias(recording, frame: str = "lab", fps: float | None = None,
