@@ -27,13 +27,14 @@ class ConditionError(ValueError):
     """A condition the twin cannot represent (the message names the condition)."""
 
 
-def physics_table(conditions: pd.DataFrame) -> pd.DataFrame:
+def physics_table(conditions: pd.DataFrame, source="conditions.csv") -> pd.DataFrame:
     """condition_id, frequency_hz, ball_diameter_mm, amplitude_mm (NaN = not stated), n_balls.
 
     Parameters
     ----------
     conditions : DataFrame - a dataset's conditions (condition_id, frequency_hz,
-        ball_diameter_mm and optionally amplitude_mm, n_balls)
+        ball_diameter_mm and optionally amplitude_mm, n_balls), in the file's row order
+    source : the file the errors name (with the row, its line and the column)
 
     Raises
     ------
@@ -50,18 +51,24 @@ def physics_table(conditions: pd.DataFrame) -> pd.DataFrame:
         "n_balls": (pd.to_numeric(c["n_balls"], errors="coerce").fillna(1).to_numpy(int)
                     if "n_balls" in c.columns else np.ones(len(c), int)),
     })
-    bad = out[~out["n_balls"].isin(SUPPORTED_N_BALLS)]
+    bad = np.flatnonzero(~out["n_balls"].isin(SUPPORTED_N_BALLS).to_numpy())
     if len(bad):
-        r = bad.iloc[0]
-        raise ConditionError("conditions.csv: condition %r has n_balls = %d; the twin's scene "
-                             "holds one ball (n_balls = 1)" % (r["condition_id"], r["n_balls"]))
+        r = out.iloc[bad[0]]
+        raise ConditionError("%s, row %d (line %d), column 'n_balls': condition %r has "
+                             "n_balls = %d; the twin's scene holds one ball (n_balls = 1)"
+                             % (source, bad[0] + 1, bad[0] + 2, r["condition_id"],
+                                r["n_balls"]))
     keys = [physics_key(r.frequency_hz, r.ball_diameter_mm, r.amplitude_mm, r.n_balls)
             for r in out.itertuples()]
-    dup = pd.Series(keys).duplicated(keep=False)
-    if dup.any():
-        ids = list(out.loc[dup.to_numpy(), "condition_id"])
-        raise ConditionError("conditions.csv: conditions %s describe the same physics (%s); "
-                             "merge them" % (ids, keys[int(np.argmax(dup.to_numpy()))]))
+    first = keys[int(np.argmax(pd.Series(keys).duplicated().to_numpy()))]
+    same = [i for i, k in enumerate(keys) if k == first]
+    if len(same) > 1:
+        raise ConditionError(
+            "%s, rows %s (lines %s), columns frequency_hz, ball_diameter_mm, amplitude_mm, "
+            "n_balls: conditions %s describe the same physics (%s); merge them"
+            % (source, " and ".join(str(i + 1) for i in same),
+               " and ".join(str(i + 2) for i in same),
+               [out["condition_id"].iloc[i] for i in same], first))
     out["physics_key"] = keys
     return out
 

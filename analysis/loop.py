@@ -94,7 +94,7 @@ from analysis.conditions import ConditionError, label, physics_table
 from analysis.catalog import CANDIDATES, candidates
 from analysis.diagnose import (BaseParameter, calibrate_base, dataset_observations, diagnose,
                                with_run_sd)
-from analysis.measurements import DatasetError, load_dataset, yield_times_of
+from analysis.measurements import DatasetError, conditions_file, load_dataset, yield_times_of
 from analysis.parameter_space import (ParameterVector, coordinates_of,
                                      reference_parameters)
 from analysis.sweep import parse_key_value
@@ -1779,7 +1779,7 @@ def prepare(a):
     ds = load_dataset(a.dataset)
     for line in ds.warnings:            # accepted, but outside what the twin is tested on
         print("analysis.loop: warning: %s" % line, file=sys.stderr)
-    physics_table(ds.conditions)
+    physics_table(ds.conditions, conditions_file(ds))
     pinned_observation(ds)              # a stated chain outside its bounds: before any run
     if a.v_rel_sd is not None:
         ds = with_assumed_v_sd(ds, a.v_rel_sd)

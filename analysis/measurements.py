@@ -866,9 +866,9 @@ def validate(dataset: Dataset) -> Dataset:
     yields = None
     if dataset.yields is not None:
         yields = validate_yields_table(dataset.yields, ids)
+    # the file's name alone: load_dataset prefixes the folder to every message
     _check_each_condition_measured(cond, summ, tracks, dataset.video_files, yields,
-                                   "conditions.csv" if dataset.path is None
-                                   else str(Path(dataset.path) / "conditions.csv"))
+                                   "conditions.csv")
     return Dataset(name=meta["name"], description=meta["description"], source=meta["source"],
                    velocity_frame=meta["velocity_frame"], conditions=cond, summary=summ,
                    tracks=tracks, video=dataset.video, video_files=dict(dataset.video_files),
@@ -1111,6 +1111,11 @@ def yield_times_of(dataset: Dataset) -> dict:
             for cid, g in dataset.yields.groupby("condition_id", sort=False)}
 
 
+def conditions_file(ds) -> str:
+    """The dataset's conditions.csv as its errors name it (with the folder when it has one)."""
+    return "conditions.csv" if ds.path is None else str(Path(ds.path) / "conditions.csv")
+
+
 def main(argv=None):
     """``python -m analysis.measurements DIR``: validate a dataset and print what it holds."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
@@ -1121,7 +1126,7 @@ def main(argv=None):
     from analysis.conditions import ConditionError, physics_table
     try:
         ds = load_dataset(args.dataset)
-        physics_table(ds.conditions)        # what the twin can run: one ball, distinct physics
+        physics_table(ds.conditions, conditions_file(ds))   # one ball, distinct physics
     except (DatasetError, ConditionError) as exc:
         print("analysis.measurements: error: %s" % exc, file=sys.stderr)
         return 2

@@ -324,8 +324,9 @@ def test_a_condition_without_any_measurement_is_refused(ds_dir):
     lines = (ds_dir / "summary.csv").read_text().splitlines()
     gone = lines[1].split(",")[0]
     (ds_dir / "summary.csv").write_text("\n".join([lines[0]] + lines[2:]) + "\n")
-    with pytest.raises(DatasetError, match="condition %r has no measurement" % gone):
+    with pytest.raises(DatasetError, match="condition %r has no measurement" % gone) as err:
         load_dataset(ds_dir)
+    assert str(err.value).count(str(ds_dir)) == 1, err.value     # the folder named once
     (ds_dir / "yields.csv").write_text("condition_id,time_min,yield_pct\n%s,5,10\n" % gone)
     assert gone in set(load_dataset(ds_dir).conditions["condition_id"])   # a yield is one
 
@@ -346,3 +347,5 @@ def test_cli_refuses_what_the_twin_cannot_run(ds_dir, capsys):
     assert main([str(ds_dir)]) == 2                    # ... the twin cannot run
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "describe the same physics" in err
+    n = len(text.splitlines())          # the first data row and its twin, the new last one
+    assert "%s, rows 1 and %d (lines 2 and %d)" % (ds_dir / "conditions.csv", n, n + 1) in err
