@@ -1596,6 +1596,10 @@ def dof_limits(ds, max_effects, extra=(), free=(), base=DEFAULT_BASE):
     return dof, min(max_effects, dof - 1)
 
 
+#: the FAKE analytic twin's wall time per run in the dry run's plan [s]
+FAKE_RUN_WALL_S = 0.05
+
+
 def plan_lines(ds, settings, base_config, twin) -> list:
     """The dry run's lines: wave 0 exactly (cached, committed, new), the refinement waves and
     the reruns at most, the total and its wall time."""
@@ -1608,7 +1612,9 @@ def plan_lines(ds, settings, base_config, twin) -> list:
                      per_wave=settings.per_wave, replicates=settings.replicates)
     rerun = (settings.confirm_rounds * settings.rerun_replicates * n_c) if settings.rerun else 0
     focus = settings.focus_points * n_c
-    per = run_wall_s(base_config, twin.runs_dir)
+    from analysis import config
+    fake = Path(twin.runs_dir) == Path(config.FAKE_RUNS_DIR)
+    per = FAKE_RUN_WALL_S if fake else run_wall_s(base_config, twin.runs_dir)
     new_most = p0.new + most["refinement"] + focus + rerun
     return [
         "wave 0 (%d points + the reference point x %d seeds, %d conditions): %s"
@@ -1620,9 +1626,12 @@ def plan_lines(ds, settings, base_config, twin) -> list:
         "twin reruns at the final point: up to %d runs (%d round(s) x %d seeds x %d conditions)"
         % (rerun, settings.confirm_rounds if settings.rerun else 0, settings.rerun_replicates,
            n_c),
-        "total: up to %d runs, up to %d new, about %.0f min on %d worker(s) (%.0f s per run)"
+        "total: up to %d runs, up to %d new, about %.0f min of twin runs on %d worker(s) "
+        "(%.2g s per run%s), plus the analysis (the fits and the bootstrap draws: minutes to "
+        "half an hour a loop on one core)"
         % (p0.runs + most["refinement"] + focus + rerun, new_most,
-           math.ceil(new_most / max(twin.workers, 1)) * per / 60, twin.workers, per)]
+           math.ceil(new_most / max(twin.workers, 1)) * per / 60, twin.workers, per,
+           ", the FAKE analytic twin" if fake else "")]
 
 
 def main(argv=None):
@@ -1686,12 +1695,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-intervals", action="store_true",
                     help="skip the profile-likelihood intervals (the se only)")
     ap.add_argument("--alpha", type=float, default=d.alpha,
-                    help="family-wise significance level of each diagnosis step [-]")
+                    help="family-wise significance level of each diagnosis step [-] (default "
+                    "%(default)s)")
     ap.add_argument("--null-draws", type=int, default=d.null_draws,
                     help="[datasets] datasets drawn from the fitted model per step to calibrate the "
-                    "significance threshold (0: nominal level only)")
+                    "significance threshold (0: nominal level only; default %(default)s)")
     ap.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
-                    help="most effects added (forward selection) [effects]")
+                    help="most effects added (forward selection) [effects] (default "
+                    "%(default)s)")
     ap.add_argument("--frame", choices=("lab", "jar", "auto"), default="auto",
                     help="frame the twin runs are integrated in (run config 'frame'; default "
                     "%(default)s: the jar frame, 1.7-1.9x faster, where the effects allow it)")
@@ -1719,7 +1730,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "stl_path=my_jar.stl (docs/apparatus.md), rolling_model, dt_s; not the "
                     "conditions, seeds, effects or the calibrated base parameters")
     ap.add_argument("--workers", type=int, default=2,
-                    help="parallel processes: twin runs and the bootstrap draws [processes]")
+                    help="parallel processes: twin runs and the bootstrap draws [processes] "
+                    "(default %(default)s)")
     ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
                     help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")
     ap.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
@@ -1754,7 +1766,7 @@ def _main(argv=None):
     except RuntimeError as exc:                     # a twin run failed: not the input's fault
         print("analysis.loop: error: %s" % str(exc).replace("\n", " "), file=sys.stderr)
         return 1
-    print(res.verdict)
+    print(("FAKE twin (the analytic stand-in, not the DEM): " if a.fake else "") + res.verdict)
     print("staircase: " + ", ".join("%s %.2f" % (r.stage, r.chi2_dof)
                                     for r in res.staircase.itertuples()))
     print("wrote %s" % a.out)

@@ -150,6 +150,7 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert rc == 0
     text = capsys.readouterr().out
     assert "staircase: baseline" in text and "wrote" in text
+    assert text.startswith("FAKE twin")                      # the stand-in says so at once
     d = pd.read_csv(out / "diagnosis.csv")
     for c in ("effect", "rank", "significant", "strength", "strength_se", "delta_chi2_needed"):
         assert c in d.columns
@@ -253,6 +254,7 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
     assert "wave 0 (12 points + the reference point x 3 seeds, 8 conditions): 120 runs" in text
     assert "up to 32 runs" in text and "focus wave: 24 runs" in text
     assert "total: up to 192 runs" in text
+    assert "s per run, the FAKE analytic twin), plus the analysis" in text
     before = set(p.name for p in config.FAKE_RUNS_DIR.iterdir())
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o2"), "--fake",
                     "--budget-runs", "0"] + SMALL)
