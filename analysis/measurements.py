@@ -1,6 +1,6 @@
 """Measurement datasets: load, validate and write ``data/measurements/<name>/``.
 
-A dataset is what a user brings to compare the twin with (DESIGN.md, "Measurement dataset"):
+A dataset is what a user brings to compare the twin with (docs/dataset_format.md):
 
 ==========================  =====================================================  ========
 file                        columns                                                needed

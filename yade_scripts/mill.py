@@ -19,13 +19,13 @@ agrees (steady state), and records ``record_s``. Protocol 'free': the jar runs a
 recording starts at once (tests of contact physics).
 
 Writes into a temporary folder beside --out and renames it when complete: meta.json,
-trajectory.csv, impacts.csv (see README.md, "Recording"). An existing --out is replaced only when
+trajectory.csv, impacts.csv (see docs/reference.md, "Recording"). An existing --out is replaced only when
 this project wrote it (``out_rule.py``: the mark file, or a recording of this scene); any other
 non-empty folder, the repository, a source folder or an input is refused with one line and exit
 code 2 before the simulation starts. Exit code 2 on bad input, 3 when the ball
 leaves the jar or the run exceeds its wall-time budget; nothing is left marked complete then.
 
-Pitfalls handled here (see README.md):
+Pitfalls handled here (see docs/reference.md):
 - HarmonicMotionEngine's phase uses absolute O.time: the phase offset ``fi`` is recomputed at every
   frequency update so that the jar's phase is continuous, and the engine's velocity is taken at
   mid-step, so x_jar = A sin(phi(t)) about the rest position to O(dt^2).
