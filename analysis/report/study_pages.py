@@ -486,15 +486,28 @@ def page_studies(f: StudyFolder):
     head = f"facets: {len(fc)} rows; dt within criterion up to " \
            f"{ok['dt_s'].max():.0e} s" if not ok.empty else f"facets: {len(fc)} rows"
     if cov is not None:
+        from analysis.parameter_space import CALIBRATED
         crow = []
         for c in [c for c in cov.columns if c.startswith("covered_")]:
+            k = c[len("covered_"):]
             x = cov[c].astype(str).str.lower() == "true"
-            crow.append([c[len("covered_"):], f"{x.mean() * 100:.0f} %", str(len(cov))])
+            z = ((pd.to_numeric(cov["mean_" + k]) - pd.to_numeric(cov["truth_" + k]))
+                 / pd.to_numeric(cov["sd_" + k])) if "sd_" + k in cov else pd.Series(np.nan)
+            lo, hi = CALIBRATED.get(k, (np.nan, np.nan))
+            flat = (hi - lo) / np.sqrt(12.0)
+            sd = pd.to_numeric(cov["sd_" + k]).mean() if "sd_" + k in cov else np.nan
+            crow.append([k, f"{x.mean() * 100:.0f} %", str(len(cov)),
+                         fmt(float(np.sqrt(np.mean(z ** 2))), 2), fmt(sd / flat, 2)])
         out += ["## Calibration coverage on the FAKE twin", "",
                 synthetic_banner("calibration_coverage_fake.csv checks the calibration "
                                  "machinery on an analytic FAKE twin with synthetic "
                                  "measurements, not the real twin."), "",
-                md_table(["parameter", "95 % intervals holding the truth", "trials"], crow), ""]
+                "RMS z = the root mean square of (posterior mean - truth) / posterior sd (1 when "
+                "the stated sd is right, below 1 when it is wider than the errors); sd / prior "
+                "sd = the mean posterior sd over the sd of the flat prior on the parameter's "
+                "bounds (near 1: the data barely narrow it).", "",
+                md_table(["parameter", "95 % intervals holding the truth", "trials", "RMS z",
+                          "sd / prior sd"], crow), ""]
     out += _sensitivity_section(f)
     meshes = sorted((f.path / "meshes").glob("*.stl")) if (f.path / "meshes").is_dir() else []
     if meshes:
