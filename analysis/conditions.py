@@ -60,7 +60,8 @@ def physics_table(conditions: pd.DataFrame, source="conditions.csv") -> pd.DataF
                                 r["n_balls"]))
     keys = [physics_key(r.frequency_hz, r.ball_diameter_mm, r.amplitude_mm, r.n_balls)
             for r in out.itertuples()]
-    first = keys[int(np.argmax(pd.Series(keys).duplicated().to_numpy()))]
+    dup = pd.Series(keys, dtype=object).duplicated().to_numpy()
+    first = keys[int(np.argmax(dup))] if dup.any() else None
     same = [i for i, k in enumerate(keys) if k == first]
     if len(same) > 1:
         raise ConditionError(
