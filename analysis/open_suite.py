@@ -152,15 +152,16 @@ def score(name, loop_info, diagnosis, staircase, truth, parameters=None) -> dict
 DETECTABLE_CHI2 = 21.0
 
 
-def loop_model(dataset, loop_dir):
+def loop_model(dataset, loop_dir, runs=None):
     """The loop's final model (the emulator refitted to every run in ``loop_dir``'s
-    model_runs.csv; no run starts) and its observations; (None, None) without the table."""
+    model_runs.csv, or to ``runs``, a part of that table; no run starts) and its observations;
+    (None, None) without the table."""
     from analysis.loop import LoopSettings, fit_observations, read_stage
     runs_csv = Path(loop_dir) / "model_runs.csv"
-    if not runs_csv.is_file():
+    if runs is None and not runs_csv.is_file():
         return None, None
     st = read_stage(dataset, LoopSettings(), track=False, log=lambda _: None)
-    m = st.model.fit(pd.read_csv(runs_csv))
+    m = st.model.fit(pd.read_csv(runs_csv) if runs is None else runs)
     return m, fit_observations(st.obs0, m)
 
 
@@ -177,7 +178,6 @@ def rerun_own_mode(dataset, loop_dir, loop_info) -> dict:
     "rerun_mode_p", "rerun_mode_max_abs_z"}; NaN without a rerun or its table."""
     from analysis.catalog import candidates
     from analysis.emulated_twin import SPEED_COLUMN
-    from analysis.loop import LoopSettings, read_stage
     out = {"rerun_mode_chi2": np.nan, "rerun_mode_n": 0, "rerun_mode_p": np.nan,
            "rerun_mode_max_abs_z": np.nan}
     runs_csv = Path(loop_dir) / "model_runs.csv"
@@ -189,8 +189,7 @@ def rerun_own_mode(dataset, loop_dir, loop_info) -> dict:
     last = runs["wave"].astype(str) == wave
     if not last.any():
         return out
-    st = read_stage(dataset, LoopSettings(), track=False, log=lambda _: None)
-    m = st.model.fit(runs[~last])
+    m, _ = loop_model(dataset, loop_dir, runs[~last])
     cands = candidates()
     point = reruns[-1]["point"]
     theta = {k: float(v) for k, v in point.items() if k not in cands}
@@ -412,15 +411,15 @@ def run_suite(datasets_dirs=DATASETS_DIRS, out_dir=OUT_DIR, only=None, log=print
                     pd.read_csv(dest / "staircase.csv"), truth,
                     pd.read_csv(dest / "parameters.csv")
                     if (dest / "parameters.csv").is_file() else None)
+        ds = load_dataset(datasets_dir / name)
         if row["n_hidden"]:
-            ds = load_dataset(datasets_dir / name)
             pair = row["n_hidden"] >= 2
             row["detectable_chi2"], each = detectability(ds, truth, dest, each=pair)
             if pair:
                 for k, v in each.items():
                     row["%s_beyond_chi2" % k] = v
                 row["detectable_min_chi2"] = min(each.values()) if each else np.nan
-        row.update(rerun_own_mode(load_dataset(datasets_dir / name), dest, info))
+        row.update(rerun_own_mode(ds, dest, info))
         rows.append(row)
     return pd.DataFrame(rows)
 
