@@ -1035,9 +1035,11 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     # the last round's refit is the final fit: its lean is already measured
     lean = (state.reruns[-1].lean if state.reruns and state.reruns[-1].lean is not None
             else lean_of(final, state.obs, state.settings.alpha))
+    fake = any((r.runs.get("motion_mode", pd.Series(dtype=object)).astype(str) == "fake").any()
+               for r in state.reruns)
     status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
                                      dataset, model, state.settings.alpha, parameters,
-                                     state.dropped, lean)
+                                     state.dropped, lean, fake)
     phys = physics_table(dataset.conditions)
     reruns = (pd.concat([r.runs for r in state.reruns], ignore_index=True)
               if state.reruns else None)
@@ -1259,14 +1261,15 @@ def _interval_words(parameters, name):
                                           float(r["profile_hi"].iloc[0]))
 
 
-def rerun_words(rr, final, alpha=None, added=()):
+def rerun_words(rr, final, alpha=None, added=(), fake=False):
     """The twin rerun's chi2/dof beside the model's, and whether the emulator's stated
     uncertainty covered the rerun (:func:`emulator_vs_twin`, before the rerun's runs joined
     it). With ``alpha``: when the rerun misfits the data (p < alpha) where the model's fit
     does not, the words say the twin does not confirm the fit - and the effects ``added``
-    are then the emulator's answer, not the twin's."""
-    out = ("the real twin rerun at the final parameters: chi2/dof %.2f, the emulator's there "
-           "%.2f" % (rr.chi2_dof, final.chi2_dof))
+    are then the emulator's answer, not the twin's. ``fake``: the rerun's runs are the FAKE
+    twin's (the words say so instead of 'real')."""
+    out = ("the %s twin rerun at the final parameters: chi2/dof %.2f, the emulator's there "
+           "%.2f" % ("FAKE" if fake else "real", rr.chi2_dof, final.chi2_dof))
     p_rr = rr.p_value
     if alpha is not None and p_rr < alpha <= final.p_value:
         out += (" - the twin does NOT confirm the fit (its rerun's p = %.2g)%s; more runs "
@@ -1318,7 +1321,7 @@ def _diagnosis_table(steps, added, eff_se):
 
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
-                   parameters=None, dropped=(), lean=None):
+                   parameters=None, dropped=(), lean=None, fake=False):
     from analysis.report.loop_words import is_constrained, prior_sd, spread_of, \
         stated_stroke_words
     head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
@@ -1402,7 +1405,7 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
     if loose:
         parts.append("not constrained by the data: " + ", ".join(loose))
     if rr is not None:
-        parts.append(rerun_words(rr, final, alpha, list(added)))
+        parts.append(rerun_words(rr, final, alpha, list(added), fake))
     # a final point that leans on the emulator's uncertainty, where no twin rerun confirms
     # the fit (none made, or one that misfits): the verdict rests on the emulator's ignorance
     confirmed = rr is not None and rr.p_value >= alpha

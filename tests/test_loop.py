@@ -838,6 +838,8 @@ def test_the_verdict_says_when_the_twin_does_not_confirm_the_fit():
     assert "NOT confirm" not in rerun_words(score(12.0), fit, 0.01, ["jar_compliance"])
     bad = SimpleNamespace(chi2_dof=3.1, p_value=1e-4)
     assert "NOT confirm" not in rerun_words(score(249.3), bad, 0.01, [])
+    assert w.startswith("the real twin rerun")
+    assert rerun_words(score(12.0), fit, 0.01, [], fake=True).startswith("the FAKE twin rerun")
 
 
 def test_lean_separates_the_emulators_ignorance_from_a_fit():

@@ -162,7 +162,10 @@ def test_fake_loop_staircase_is_explained(fake_loop):
     assert "dof = observations - fitted parameters" in page
     assert "The verdict quotes" in page
     for s in st["stage"]:
-        assert "| %s | %s:" % (s, lw.stage_kind(s)) in page
+        assert "| %s | %s:" % (s, lw.stage_kind(s, fake=True)) in page
+    assert "real twin" not in page          # a FAKE loop's reruns are the stand-in's
+    if (st["stage"] == "twin rerun").any():
+        assert "| twin rerun | FAKE twin:" in page
     assert "The rule, once:" in page
 
 
@@ -185,7 +188,7 @@ def test_staircase_is_linear_labelled_and_marks_what_the_verdict_quotes(fake):
     words = [t.get_text() for t in yt]
     assert words[1] == "calibrated  [model]"
     assert words[5] == "refitted on the twin reruns  [model]"
-    assert words[6] == "twin rerun  [real twin]"
+    assert words[6] == "twin rerun  [%s]" % ("FAKE twin" if fake else "real twin")
     # the verdict quotes 'calibrated', the last model row (final) and the last twin rerun
     q = lw.quoted_stages(DEMO_STAIRCASE)
     assert q == {"calibrated": 1, "final": 7, "twin rerun": 6}

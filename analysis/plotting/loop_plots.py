@@ -24,7 +24,7 @@ def _name_and_synthetic(dataset, dataset_name, synthetic):
 
 
 #: colours of the loop staircase's bar kinds (analysis.report.loop_words.stage_kind)
-STAGE_COLOURS = {"model": "C0", "real twin": "C3"}
+STAGE_COLOURS = {"model": "C0", "real twin": "C3", "FAKE twin": "C1"}
 
 
 def loop_staircase_figsize(staircase):
@@ -56,7 +56,7 @@ def plot_loop_staircase(staircase, ax=None, *, quoted=None, synthetic: bool = Fa
     v = np.asarray(st["chi2_dof"], float)
     shown = np.where(np.isfinite(v), v, 0.0)
     dof = (np.asarray(st["dof"], float) if "dof" in st else np.full(n, np.nan))
-    kinds = [stage_kind(s) for s in st["stage"]]
+    kinds = [stage_kind(s, fake) for s in st["stage"]]
     if quoted is None:
         quoted = quoted_stages(st) if "stage" in st else {}
     qrows = {int(i): role for role, i in quoted.items()}

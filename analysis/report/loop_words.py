@@ -23,10 +23,11 @@ FAKE_WORDS = ("FAKE twin: every twin run of this loop was made by the analytic s
               "about a mill")
 
 #: what a staircase bar is
-MODEL, TWIN = "model", "real twin"
-#: legend words of the two kinds
+MODEL, TWIN, FAKE_TWIN = "model", "real twin", "FAKE twin"
+#: legend words of the kinds
 KIND_WORDS = {MODEL: "model (the emulator fitted to the dataset's twin runs)",
-              TWIN: "real twin (fresh runs at the fitted point)"}
+              TWIN: "real twin (fresh runs at the fitted point)",
+              FAKE_TWIN: "FAKE twin (the analytic stand-in's fresh runs at the fitted point)"}
 
 #: a parameter is "not constrained by the data" when its standard error is at least this
 #: fraction of its prior sd (the Gaussian prior's sd where the fit has one, else the sd of a
@@ -70,13 +71,16 @@ def is_fake_run(res) -> bool:
 
 # ------------------------------------------------------------------------------- the staircase
 
-def stage_kind(stage: str) -> str:
-    """:data:`MODEL` or :data:`TWIN` for a staircase stage name."""
-    return TWIN if str(stage).startswith("twin rerun") else MODEL
+def stage_kind(stage: str, fake: bool = False) -> str:
+    """:data:`MODEL` or :data:`TWIN` for a staircase stage name (:data:`FAKE_TWIN` for a
+    rerun of a ``fake`` loop: its fresh runs are the analytic stand-in's, not the DEM's)."""
+    if not str(stage).startswith("twin rerun"):
+        return MODEL
+    return FAKE_TWIN if fake else TWIN
 
 
-def stage_words(stage: str) -> str:
-    """What a staircase stage is, in a few words."""
+def stage_words(stage: str, fake: bool = False) -> str:
+    """What a staircase stage is, in a few words (``fake``: a FAKE-twin loop's)."""
     s = str(stage)
     if s == "baseline":
         return "the model at the reference point, nothing fitted"
@@ -85,7 +89,8 @@ def stage_words(stage: str) -> str:
     if s.startswith("+ "):
         return "%s added: its strength fitted with the base parameters" % s[2:]
     if s == "twin rerun":
-        return "the real twin rerun at the fitted point, with the effects found (if any)"
+        return ("the %s twin rerun at the fitted point, with the effects found (if any)"
+                % ("FAKE" if fake else "real"))
     if s == "refitted on the twin reruns":
         return ("the emulator refitted with the rerun's runs, the base parameters and "
                 "strengths fitted again")
@@ -101,7 +106,7 @@ def quoted_stages(staircase) -> dict:
     out = {}
     if "calibrated" in st:      # the last: a focus wave after a rerun calibrates again
         out["calibrated"] = len(st) - 1 - st[::-1].index("calibrated")
-    model = [i for i, s in enumerate(st) if stage_kind(s) != TWIN and s != "baseline"]
+    model = [i for i, s in enumerate(st) if stage_kind(s) == MODEL and s != "baseline"]
     if model and model[-1] != out.get("calibrated"):
         out["final"] = model[-1]
     if "twin rerun" in st:
@@ -109,7 +114,7 @@ def quoted_stages(staircase) -> dict:
     return out
 
 
-def quoted_words(staircase) -> str:
+def quoted_words(staircase, fake: bool = False) -> str:
     """One sentence naming the stages whose chi2/dof the verdict quotes."""
     q = quoted_stages(staircase)
     if not q:
@@ -121,7 +126,7 @@ def quoted_words(staircase) -> str:
         parts.append("%s chi2/dof %s is the row `%s` (%s)"
                      % ({"calibrated": "the 'calibrated'", "final": "the final",
                          "twin rerun": "the twin rerun's"}[role], _f2(cd[i]), st[i],
-                        stage_words(st[i])))
+                        stage_words(st[i], fake)))
     return "The verdict quotes (marked * in the table and the figure): " + "; ".join(parts) + "."
 
 
@@ -157,7 +162,7 @@ def dof_words(staircase) -> list:
                        % (a["stage"], b["stage"], float(a["chi2"]), float(b["chi2"]),
                           _f2(a["chi2_dof"]), _f2(b["chi2_dof"]), int(a["dof"]), int(b["dof"]),
                           int(a["dof"]) - int(b["dof"])))
-    if any(stage_kind(s) == TWIN for s in st["stage"]):
+    if any(stage_kind(s) != MODEL for s in st["stage"]):
         out.append("The twin rerun rows are scored with the noise of the reruns' means "
                    "instead of the emulator's, against the twin itself: where one lies above "
                    "the model row before it, the twin disagrees with the emulator at that "

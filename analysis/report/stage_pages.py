@@ -68,7 +68,7 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
     md += ["**Verdict%s:** %s" % (" (%s twin)" % FAKE if fake else "", res.verdict), ""]
     stair = res.staircase.reset_index(drop=True)
     quoted = quoted_stages(stair) if quoted is None and len(stair) else (quoted or {})
-    qw = quoted_words(stair) if len(stair) else ""
+    qw = quoted_words(stair, fake) if len(stair) else ""
     if qw:
         md += [qw, ""]
     pins = i.get("pinned_observation") or {}
@@ -86,16 +86,17 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                                  "m_per_px", "scale_source", "jar_n_lost"])
     md += ["", "## Staircase (chi2/dof)", "",
            "Each row is the model (the emulator fitted to every twin run made for this "
-           "dataset, its own uncertainty in the likelihood) or the real twin itself (fresh "
-           "runs at the fitted point); rows in the loop's order.", ""]
+           "dataset, its own uncertainty in the likelihood) or the %s itself (fresh "
+           "runs at the fitted point); rows in the loop's order."
+           % ("FAKE twin (the analytic stand-in)" if fake else "real twin"), ""]
     qrows = {int(v): k for k, v in quoted.items()}
     cols = ["", "stage", "what it is", "chi2", "dof", "fitted parameters", "chi2/dof",
             "p_value"]
     md += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for k, r in stair.iterrows():
         md.append("| %s | %s | %s: %s | %s | %s | %s | %s | %s |"
-                  % ("*" if k in qrows else "", r["stage"], stage_kind(r["stage"]),
-                     stage_words(r["stage"]), _cell(r.get("chi2")), _cell(r.get("dof"), "%d"),
+                  % ("*" if k in qrows else "", r["stage"], stage_kind(r["stage"], fake),
+                     stage_words(r["stage"], fake), _cell(r.get("chi2")), _cell(r.get("dof"), "%d"),
                      _cell(r.get("n_params"), "%d"),
                      _cell(r["chi2_dof"], "%.3g") if float(r.get("dof", 1)) > 0 else
                      "untestable", _cell(r.get("p_value"), "%.3g")))
