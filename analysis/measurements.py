@@ -413,6 +413,12 @@ def read_table(path, fname=None):
     if not rows:
         raise DatasetError("%s: malformed CSV (empty file, no header)" % fname)
     header = [h.strip() for h in rows[0]]
+    if len(header) == 1:
+        sep = [c for c in ";\t|" if c in header[0]]
+        if sep:         # a spreadsheet's regional "CSV": the whole header is one field
+            raise DatasetError("%s: malformed CSV (the header is one field separated by %r; "
+                               "write the file with commas as separators and points as decimal "
+                               "marks)" % (fname, sep[0]))
     for i, r in enumerate(rows[1:], start=1):
         if len(r) != len(header):
             raise DatasetError("%s: malformed CSV (%d fields, the header has %d)"

@@ -164,6 +164,16 @@ def test_bad_input_raises_one_clear_error(ds_dir, fname, old, new, phrases):
     assert str(ds_dir) in msg
 
 
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_a_regional_csv_is_named(ds_dir, sep):
+    """A spreadsheet's regional CSV (semicolons, decimal commas): one error saying so."""
+    f = ds_dir / "summary.csv"
+    f.write_text(f.read_text().replace(",", sep))
+    with pytest.raises(DatasetError, match=r"summary.csv: malformed CSV \(the header is one "
+                                           r"field separated by .*commas as separators"):
+        load_dataset(ds_dir)
+
+
 def test_bad_optional_files(ds_dir):
     (ds_dir / "tracks").mkdir()
     (ds_dir / "tracks" / "f99_d1.csv").write_text("t_s,x_m,y_m\n0,0,0\n0.001,0,0\n")
