@@ -879,7 +879,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
              conditions: pd.DataFrame | None = None, alpha: float = 0.01,
              min_footprint: float = 2.0, min_snr: float = 3.0,
              effect_step_frac: float = 0.25, base_step_frac: float = 1e-3,
-             structure: bool = True, noise_observables=None) -> Diagnosis:
+             structure: bool = True, noise_observables=None, progress=None) -> Diagnosis:
     """Rank candidate effects by how well each explains the residual after calibration.
 
     Parameters
@@ -923,6 +923,9 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         computed from the same draws, would count the same noise several times). None: all.
         A 'kinetics' effect acts after the twin, on the same draws: its signature carries no
         twin noise.
+    progress : str or None
+        a progress bar's label: a bar over the candidates' fits on stderr (None: no bar)
+
     Returns
     -------
     Diagnosis
@@ -943,8 +946,10 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     indep = (np.ones(n, bool) if noise_observables is None
              else np.isin(obs_names, list(noise_observables)))
 
+    from tqdm.auto import tqdm
     rows, fits, sigs = [], {}, {}
-    for name, e in prob.effects.items():
+    for name, e in tqdm(prob.effects.items(), total=len(prob.effects), desc=progress or "",
+                        unit="candidate", disable=not progress, leave=False):
         travel = e.far - e.null
         h = effect_step_frac * travel
         g = (prob.mu(theta_c, {name: e.null + h}) - prob.mu(theta_c, {name: e.null})) / h

@@ -404,14 +404,16 @@ def _null_draw(w, o, base_params, effs, alpha, noise_observables, conditions):
 
 
 def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observables,
-               conditions, seed=0, n_jobs=1):
+               conditions, seed=0, n_jobs=1, progress=False):
     """Parametric bootstrap of one diagnosis step: ``n_draws`` datasets drawn from the step's
     calibrated fit (no further effect; Gaussian noise with the stated sigma) are diagnosed like
     the real one. Returns (c, null_max, n_false): c >= 1 scales the nominal chi2-gain threshold
     so that the draws' median largest gain sits where the nominal law puts it - what the scan
     over each strength's range and the bounds add to chance (look-elsewhere); n_false counts
     the draws in which an effect was significant at the nominal level. ``n_jobs`` > 1
-    diagnoses the draws in that many processes (the same draws, the same answer)."""
+    diagnoses the draws in that many processes (the same draws, the same answer);
+    ``progress``: a bar over the draws on stderr."""
+    from tqdm.auto import tqdm
     rng = np.random.default_rng(seed)
     cal = diag.calibrated
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
@@ -424,10 +426,12 @@ def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observa
     args = (base_params, effs, alpha, noise_observables, conditions)
     if int(n_jobs) > 1 and len(draws) > 1:
         from joblib import Parallel, delayed
-        out = Parallel(n_jobs=min(int(n_jobs), len(draws)))(
+        out = Parallel(n_jobs=min(int(n_jobs), len(draws)), return_as="generator")(
             delayed(_null_draw)(w, o, *args) for o in draws)
     else:
-        out = [_null_draw(w, o, *args) for o in draws]
+        out = (_null_draw(w, o, *args) for o in draws)
+    out = list(tqdm(out, total=len(draws), desc="bootstrap draws", unit="draw",
+                    disable=not progress, leave=False))
     null_max = [g for g, _ in out]
     n_false = sum(int(b) for _, b in out)
     k = max(int(diag.table["identifiable"].sum()), 1)
@@ -452,7 +456,7 @@ class Selection:
 
 
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
-                   noise_observables=None, log=print, null_draws=0, n_jobs=1):
+                   noise_observables=None, log=print, null_draws=0, n_jobs=1, progress=False):
     """Forward selection of effects on a model with ``predict``, ``model_se``, ``base_params``
     and ``effects`` (:class:`analysis.emulated_twin.TwinModelContract`): diagnose, add the
     best significant effect (its strength joins the fitted
@@ -463,6 +467,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
 
     With ``null_draws`` > 0 an effect must also beat the nominal threshold scaled by
     :func:`null_scale` (the significance calibrated on data drawn from the fitted model).
+    ``progress``: a bar per step over the candidates' fits and one over the bootstrap draws.
     """
     theta = dict(theta)
     added, diags, step_rows, stairs, last_fit = {}, [], [], [], None
@@ -481,7 +486,8 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                         model_se=w.model_se(),
                         crn_correlation=getattr(model, "crn_correlation", 0.0),
                         conditions=conditions,
-                        alpha=alpha, noise_observables=noise_observables)
+                        alpha=alpha, noise_observables=noise_observables,
+                        progress="step %d: candidates" % step if progress else None)
         t = diag.table.copy()
         t.insert(0, "step", step)
         t["threshold_scale"] = 1.0
@@ -490,7 +496,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
             c, nm, nf = null_scale(diag, w, obs, fitted_parameters(model, theta, added), effs,
                                    n_draws=null_draws, alpha=alpha, conditions=conditions,
                                    noise_observables=noise_observables, seed=step,
-                                   n_jobs=n_jobs)
+                                   n_jobs=n_jobs, progress=progress)
             nulls.append({"step": step, "scale": c, "null_max_delta_chi2": nm,
                           "n_false": nf, "n_draws": null_draws})
             t["threshold_scale"] = scale = c
@@ -592,6 +598,7 @@ class LoopState:
     intervals: dict = field(default_factory=dict)   # name -> ProfileInterval
     tracking: pd.DataFrame | None = None
     tracks: dict = field(default_factory=dict)
+    progress: bool = True            # progress bars on stderr for the long analysis steps
 
     @property
     def n_base(self):
@@ -677,7 +684,8 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
     if "amplitude_m" in asked and "amplitude_m" not in space.base_names:
         model.held["amplitude_m"] = "stated by the dataset"
     return LoopState(dataset=dataset, settings=settings, base_config=base_config, obs0=obs0,
-                     flight_ids=fl_ids, model=model, tracking=tracking, tracks=tracks)
+                     flight_ids=fl_ids, model=model, tracking=tracking, tracks=tracks,
+                     progress=progress)
 
 
 def apparatus_reference(base_config=None) -> dict:
@@ -737,7 +745,8 @@ def select_stage(state: LoopState, log=print):
     fs = forward_select(state.model, state.obs, state.theta,
                         conditions=state.dataset.conditions, alpha=s.alpha,
                         max_effects=s.max_effects, noise_observables=noise_observables(state),
-                        log=log, null_draws=s.null_draws, n_jobs=s.n_jobs)
+                        log=log, null_draws=s.null_draws, n_jobs=s.n_jobs,
+                        progress=state.progress)
     state.selection = fs
     state.set_point(fs.theta, fs.added)
     if fs.last_fit is not None:
@@ -973,7 +982,9 @@ def interval_stage(state: LoopState):
     from analysis.diagnose import profile_interval
     w = WithAdded(state.model, state.added, state.theta)
     bp = fitted_parameters(state.model, state.theta, state.added)
-    for q in bp:
+    from tqdm.auto import tqdm
+    for q in tqdm(bp, desc="profile intervals", unit="parameter", disable=not state.progress,
+                  leave=False):
         state.intervals[q.name] = profile_interval(w.predict, state.obs, bp, q.name,
                                                    state.final, model_se=w.model_se())
 

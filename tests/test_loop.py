@@ -125,6 +125,22 @@ def test_forward_selection_finds_both_effects_and_stops():
     assert par.added == fs.added
 
 
+def test_forward_selection_shows_its_progress_on_stderr(capsys):
+    """The analysis' long steps say where they are: a bar over each step's candidates and
+    one over the bootstrap draws, on stderr; none without ``progress``; the answer is the
+    same either way."""
+    m = ToyModel()
+    obs = _toy_obs(m, {"E1": 0.3}, 0.01, 0)
+    quiet = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None,
+                                null_draws=4)
+    assert capsys.readouterr().err == ""
+    shown = loop.forward_select(m, obs, {"a": 2.0, "b": 0.3}, log=lambda s: None,
+                                null_draws=4, progress=True)
+    err = capsys.readouterr().err
+    assert "step 1: candidates" in err and "bootstrap draws" in err and "4/4" in err
+    assert shown.added == quiet.added and shown.null == quiet.null
+
+
 # --------------------------------------------------------------------------- the command
 
 @pytest.fixture
