@@ -146,7 +146,7 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     from analysis.hidden import make_hidden_dataset
     from analysis.loop import LoopSettings, write_loop
     from analysis.open_suite import (_leftover_chi2, _true_hidden, detectable_chi2,
-                                     detectable_each, loop_model)
+                                     detectable_each, joint_runs, loop_model)
     from analysis.twin_runs import TwinRuns
     conds = pd.DataFrame({"condition_id": ["p%d" % i for i in range(6)],
                           "frequency_hz": [21.0, 23.0, 25.0, 27.0, 29.0, 31.0],
@@ -190,8 +190,17 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     # the outlier is in both fits, which absorb it a little differently (7.9 -> 7.4 on one
     # machine, 7.7 -> 5.3 on another): far less than the no-effect chi2's rise
     assert abs(detectable_chi2(ds, truth, loop_dir) - det) < 0.3 * rise
+    # the loop's runs never had both effects on together: what each explains beyond the
+    # other would be an extrapolation, and is not measured
+    assert joint_runs(loop_dir, true) == 0
     each = detectable_each(ds, truth, loop_dir)
     assert set(each) == {"jar_compliance", "powder_layer"}
+    assert all(np.isnan(v) for v in each.values()), each
+    runs = pd.read_csv(loop_dir / "model_runs.csv")
+    both = runs[runs["effect:jar_compliance"] > 0].assign(**{"effect:powder_layer": 0.5})
+    pd.concat([runs, both]).to_csv(loop_dir / "model_runs.csv", index=False)
+    assert joint_runs(loop_dir, true) == len(both) > 0
+    each = detectable_each(ds, truth, loop_dir)
     assert all(np.isfinite(v) for v in each.values()), each
     made({})
     assert detectable_chi2(ds, truth, loop_dir) < 0.5
@@ -234,6 +243,13 @@ def test_suite_scores_and_goal_lines_count_what_they_claim():
     assert "amplitude_m_base_covered" not in r                     # no interval: not scored
     L = "\n".join(goal_lines(pd.DataFrame(rows + [r])))
     assert "restitution 0 / 1, static_friction 1 / 1" in L
+    # pairs: one each-beside-the-other detectable and named, one too weak, one not measured
+    # (its effects never run together) - counted among the detectable ones
+    pairs = [dict(rows[0], n_hidden=2, all_named=a, detectable_min_chi2=d)
+             for a, d in ((True, 40.0), (True, 5.0), (False, np.nan))]
+    L = "\n".join(goal_lines(pd.DataFrame(rows + pairs)))
+    assert "two effects hidden -> both named: 2 / 3" in L
+    assert "(2 of 3; 1 not measured" in L and "-> both named: 1 / 2" in L
 
 
 def test_goal_lines_check_the_rerun_and_the_staircase():
