@@ -113,7 +113,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from analysis.atomic_dir import OutputError
+from analysis.atomic_dir import OutputError, atomic_file
 from analysis.config import RUNS_DIR, twin_config
 
 BACKENDS = ("local", "serial", "dask")
@@ -162,10 +162,7 @@ class SweepInterrupted(KeyboardInterrupt):
 
     @property
     def signal_name(self):
-        try:
-            return signal.Signals(self.signum).name
-        except ValueError:
-            return "signal %d" % self.signum
+        return _signal_name(self.signum)
 
     def line(self, table_path=None):
         """The one-line report: finished runs, unfinished runs, partial table, how to resume."""
@@ -333,11 +330,8 @@ def _json_default(o):
 
 
 def _atomic_write_json(path, obj):
-    path = Path(path)
-    tmp = path.with_name(".%s.%s.tmp" % (path.name, uuid.uuid4().hex[:8]))
-    with open(tmp, "w") as fh:
+    with atomic_file(path) as tmp, open(tmp, "w") as fh:
         json.dump(obj, fh, indent=1, default=_json_default)
-    os.replace(tmp, path)
 
 
 def execute_run(runner, config, runs_dir, rid):
@@ -1158,12 +1152,9 @@ def write_yade_batch_table(configs, path, columns=None):
     text = YADE_TABLE_HEAD + "; description = run id\n"
     text += "\n".join("  ".join(s.ljust(w) for s, w in zip(r, widths)).rstrip()
                       for r in rows) + "\n"
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(".%s.%s.tmp" % (path.name, uuid.uuid4().hex[:8]))
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path
+    with atomic_file(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
 
 
 # ----------------------------------------------------------------------------------------- CLI
@@ -1264,12 +1255,9 @@ def check_outputs(out=None, yade_table=None, inputs=()):
 
 def _write_table(table, out):
     """Write the sweep table as CSV, atomically (a temporary file renamed onto ``out``)."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(".%s.%s.tmp" % (out.name, uuid.uuid4().hex[:8]))
-    table.to_csv(tmp, index=False)
-    os.replace(tmp, out)
-    return out
+    with atomic_file(out) as tmp:
+        table.to_csv(tmp, index=False)
+    return Path(out)
 
 
 def main(argv=None):

@@ -30,10 +30,9 @@ import argparse
 import json
 import math
 import os
-import shutil
 import sys
 import tempfile
-from dataclasses import dataclass, field, asdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np

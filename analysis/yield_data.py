@@ -67,9 +67,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis import config
 from analysis import kinetics
-from analysis import measurements
 from analysis.yield_dataset import (PHASES, SYNTHETIC_DATASET_DIR,  # noqa: F401  (re-exported)
                                     SYNTHETIC_DATASET_NAME, YieldDataError, YieldDataset,
                                     load_yield_dataset, validate_conditions, validate_yields)

@@ -17,12 +17,10 @@ generator (:mod:`analysis.yield_data`, which re-exports these names) both read y
 from __future__ import annotations
 
 import io
-import json
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from analysis import config

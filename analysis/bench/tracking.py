@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from analysis.synthvideo import CAMERA_FPS, Camera, bounce_track, render_video
 from analysis.tracking import (TrackerSettings, decode_ahead, open_video, read_frames,

@@ -9,8 +9,6 @@ start position. Writes results/studies/facet_convergence.csv and prints it.
 import argparse
 import sys
 
-import numpy as np
-
 from analysis.config import STUDIES_DIR, REPO_ROOT
 from analysis.studies.common import STUDY_PROTOCOL, replicate_stats
 from geometry.jar import make_jar
