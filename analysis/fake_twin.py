@@ -15,6 +15,9 @@ Two faces:
   ``summary`` carries ``v_mean_m_s``, ``v_mean_jar_m_s``, ``f_col_hz``, ``n_impacts`` and
   ``motion_mode`` ("fake"). Options (``delay_s``, ``cpu_s``, ``exec_log``,
   ``fail_above_restitution``) make it slow, CPU-bound, countable or failing.
+* :func:`fake_flights` gives a run's made-up impact observables (those of
+  :mod:`analysis.flights`; the FAKE twin writes no trajectory to read them from), so a ``--fake``
+  loop runs on datasets with jar tracks too (``analysis.twin_runs.run_flights`` asks it).
 * :func:`simulate_fake` maps a list of configs straight to a table (no files), the
   ``simulate(configs) -> table`` callable used by ``analysis.calibrate`` and
   ``analysis.sensitivity``.
@@ -129,6 +132,33 @@ def fake_summary(config):
     fcol = float(fcol) + FAKE_FCOL_SD_HZ * rng.standard_normal()
     return {"v_mean_m_s": v, "v_mean_jar_m_s": v, "f_col_hz": fcol,
             "n_impacts": int(round(fcol * cfg["record_s"])), "motion_mode": "fake"}
+
+
+#: replicate noise of the FAKE impact observables [their units]
+FAKE_FLIGHT_SD = {"e_app": 0.01, "v_in_m_s": 0.03, "impact_phase_rad": 0.03,
+                  "jar_amplitude_m": 2e-5, "vy_rms_m_s": 0.005}
+
+
+def fake_flights(config) -> dict:
+    """FAKE impact observables (``analysis.flights.FLIGHT_OBSERVABLES``) of one config: made-up
+    smooth functions of the contact parameters, the stroke and the toy speed (so the effects
+    that move the speed move v_in and vy_rms too), with seeded replicate noise drawn after the
+    speed's and f_col's (tests only)."""
+    cfg = twin_config.complete_config(dict(config))
+    summ = fake_summary(cfg)
+    v = summ["v_mean_m_s"]
+    cr, sf, rf = cfg["restitution"], cfg["static_friction"], cfg["rolling_friction"]
+    a_m, f_hz = cfg["amplitude_m"], cfg["frequency_hz"]
+    # scaled like the DEM twin's near the paper's conditions (e_app ~0.37, v_in ~3.3 m/s,
+    # phase ~2.2 rad, vy_rms ~0.25 m/s at 26 Hz, 19 mm)
+    vals = {"e_app": 0.15 + 0.75 * cr - 0.05 * (sf - 0.5),
+            "v_in_m_s": 1.2 * v + 0.3 * 2.0 * np.pi * f_hz * a_m,
+            "impact_phase_rad": 2.2 + 0.4 * (sf - 0.5) - 0.3 * (rf - 0.3) + 0.5 * (cr - 0.3),
+            "jar_amplitude_m": a_m,
+            "vy_rms_m_s": 0.1 * v * (1.0 + 0.5 * (rf - 0.3)) + 0.02 * (sf - 0.5)}
+    rng = _noise_rng(cfg)
+    rng.standard_normal(2)                              # the speed's and f_col's draws
+    return {k: float(x + FAKE_FLIGHT_SD[k] * rng.standard_normal()) for k, x in vals.items()}
 
 
 def _burn_cpu(seconds):

@@ -290,7 +290,8 @@ def near_run(config, index, rel_tol=NEAR_REL_TOL):
 def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
     """Impact observables (:mod:`analysis.flights`) of cached twin runs, one row per run id
     (NaN where the operator finds no end-to-end impacts, e.g. a run in another motion mode, or
-    the run has no trajectory, e.g. the FAKE twin's)."""
+    the run has no trajectory; a FAKE twin run's are its made-up ones,
+    :func:`analysis.fake_twin.fake_flights`)."""
     from analysis.flights import FLIGHT_OBSERVABLES, FlightError, recording_flights
     from analysis.observe import ObserveError
     root = Path(runs_dir or RUNS_DIR)
@@ -299,9 +300,21 @@ def run_flights(run_ids, runs_dir=None) -> pd.DataFrame:
         try:
             vals = recording_flights(root / str(rid)).values
         except (FlightError, ObserveError, OSError):
-            vals = {}
+            vals = _fake_flights(root / str(rid))
         rows.append({"run_id": rid, **{k: vals.get(k, np.nan) for k in FLIGHT_OBSERVABLES}})
     return pd.DataFrame(rows, columns=["run_id", *FLIGHT_OBSERVABLES])
+
+
+def _fake_flights(run_dir) -> dict:
+    """A FAKE twin run's made-up impact observables ({} for any other run folder)."""
+    try:
+        meta = json.loads((Path(run_dir) / "meta.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    if not str(meta.get("yade_version", "")).startswith("FAKE"):
+        return {}
+    from analysis.fake_twin import fake_flights
+    return fake_flights(meta["config"])
 
 
 # --------------------------------------------------------------------------- the table

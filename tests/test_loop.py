@@ -158,6 +158,40 @@ def fake_dataset(tmp_path, monkeypatch):
     return ds
 
 
+def test_fake_runs_carry_impact_observables(tmp_path):
+    """The FAKE twin writes no trajectory; its runs' impact observables are made-up smooth
+    functions of the config with replicate noise: finite, the same on every read, moved by
+    the restitution, different between seeds."""
+    from analysis.flights import FLIGHT_OBSERVABLES
+    from analysis.twin_runs import run_flights
+    base = {"frequency_hz": 26.0, "ball_diameter_m": 0.019, "restitution": 0.3}
+    ids = [run_fake_twin(dict(base, **kw), runs_dir=tmp_path).name
+           for kw in ({}, {"seed": 1}, {"restitution": 0.5})]
+    a = run_flights(ids, tmp_path).set_index("run_id")
+    assert list(a.columns) == list(FLIGHT_OBSERVABLES) and np.isfinite(a.to_numpy()).all()
+    assert a.equals(run_flights(ids, tmp_path).set_index("run_id"))
+    assert a.loc[ids[2], "e_app"] - a.loc[ids[0], "e_app"] > 0.1     # 0.75 x 0.2
+    assert (a.loc[ids[0]] != a.loc[ids[1]]).all()                     # its chaos
+
+
+def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
+    """A dataset whose tracks carry the jar (the impact observables): the --fake loop fits
+    them too (it stopped at 'no run has every emulated observable finite')."""
+    from analysis.config import RESULTS_DIR
+    monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", tmp_path / "fake_runs")
+    out = tmp_path / "out"
+    rc = loop.main(["--dataset", str(RESULTS_DIR / "open_world" / "effects" / "eff_p01"),
+                    "--out", str(out), "--fake", "--points", "4", "--waves", "0",
+                    "--focus-points", "0", "--no-rerun", "--no-intervals", "--max-effects",
+                    "0", "--workers", "1"])
+    assert rc == 0
+    info = json.loads((out / "loop.json").read_text())
+    assert len(info["flight_conditions"]) == 6
+    c = pd.read_csv(out / "comparison.csv")
+    e = c[c["observable"] == "e_app"]
+    assert len(e) == 6 and np.isfinite(e["calibrated"]).all()
+
+
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     out = tmp_path / "out"
     # --workers 2: the fake twin's runs and the bootstrap draws in two processes each
