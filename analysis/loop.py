@@ -1046,8 +1046,8 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     # the last round's refit is the final fit: its lean is already measured
     lean = (state.reruns[-1].lean if state.reruns and state.reruns[-1].lean is not None
             else lean_of(final, state.obs, state.settings.alpha))
-    fake = any((r.runs.get("motion_mode", pd.Series(dtype=object)).astype(str) == "fake").any()
-               for r in state.reruns)
+    from analysis.report.loop_words import fake_runs
+    fake = fake_runs(*(r.runs for r in state.reruns))
     status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
                                      dataset, model, state.settings.alpha, parameters,
                                      state.dropped, lean, fake)

@@ -62,11 +62,13 @@ def is_constrained(se, sd, lo=float("nan"), hi=float("nan")) -> bool:
 
 def is_fake_run(res) -> bool:
     """The loop's twin runs were made by the FAKE twin (their motion mode is 'fake')."""
-    for t in (getattr(res, "model_runs", None), getattr(res, "rerun_runs", None)):
-        if t is not None and len(t) and "motion_mode" in t.columns:
-            if (t["motion_mode"].astype(str) == "fake").any():
-                return True
-    return False
+    return fake_runs(getattr(res, "model_runs", None), getattr(res, "rerun_runs", None))
+
+
+def fake_runs(*tables) -> bool:
+    """Any of the run ``tables`` (None allowed) holds a FAKE twin run (motion mode 'fake')."""
+    return any(t is not None and len(t) and "motion_mode" in t.columns
+               and (t["motion_mode"].astype(str) == "fake").any() for t in tables)
 
 
 # ------------------------------------------------------------------------------- the staircase
