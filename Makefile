@@ -11,7 +11,7 @@ export OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS ?= 1
 
 .PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
-        bench-dem bench-profile bench-loop bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
+        bench-dem bench-profile bench-loop bench-loop-cached bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
         loop open-world open-world-full calibrate apparatus emulator-check vf-study table3-chain
 
 help:
@@ -21,7 +21,7 @@ help:
 	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
 	@echo "make open-world [ONLY=\"null_p07 eff_p01\"] - the blind suite (20 no-effect, 12 one-, 6 two-effect, 10 measurement-chain datasets) and the whole loop on each (refinement and focus waves, twin reruns; about 2 h a dataset on 1 worker: 70-260 new twin runs and 30 min of analysis; resumable; open-world-full: the same) -> results/open_world/{nulls,effects,pairs,chain}/, full_loop/README.md"
 	@echo "make apparatus - the twin of the real mill (screen, identification, calibration, Table-3 loops) -> results/apparatus/"
-	@echo "make bench-dem | bench-profile | bench-loop | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt)"
+	@echo "make bench-dem | bench-profile | bench-loop | bench-loop-cached | bench-tracking | bench-predict | bench-sweep - benchmarks (print; bench-loop -> results/bench/loop_cold.txt, bench-loop-cached -> results/bench/loop_cached.txt)"
 	@echo "make vf-study - what makes v/f fall from 22.5 to 30 Hz: one change at a time, both balls, 3 seeds (252 runs, about 1 h on 1 worker; cached, resumable; the committed run table holds their summaries) -> results/studies/vf_trend/"
 	@echo "make table3-chain - the loop on Table 3 with the measurement chain among its candidates, at assumed v sds of 0.5, 1 and 2 % (about 1 h each on 1 worker from the committed runs) -> results/table3_chain/"
 	@echo "make emulator-check - the one emulator of the twin against real twin runs (wave 0 left out in folds + the demo blind loop's runs; about 1.5 h on 2 cores from an empty cache, 3 min from the committed runs) -> results/studies/emulator_check/"
@@ -75,6 +75,9 @@ bench-profile: setup
 # the whole loop on 6 conditions never run: empty cache, then cached
 bench-loop: setup
 	$(VPY) -m analysis.bench.loop_cold
+
+bench-loop-cached: venv
+	$(VPY) -m analysis.bench.loop_cached
 
 bench-tracking: venv
 	$(VPY) -m analysis.bench.tracking

@@ -84,6 +84,8 @@ class EmulatedTwin:
     pinned : {effect name: {parameter: value}} - observation effects whose parameters the
         dataset states (videos/video.json: :func:`analysis.measurements.observation_pins`),
         applied to every prediction; a pinned effect is not diagnosed
+    fit_cache : :class:`analysis.fit_cache.FitCache` or None - the emulators' and the
+        classifier's hyperparameters of earlier fits of the same runs (the same model, faster)
 
     Attributes (after :meth:`fit`)
     ----------
@@ -94,7 +96,7 @@ class EmulatedTwin:
 
     def __init__(self, conditions, space: DesignSpace, *, velocity_frame="lab",
                  flight_conditions=(), yield_times_min=None, theta_ref=None, seed=0,
-                 observation=(), pinned=None):
+                 observation=(), pinned=None, fit_cache=None):
         self.conditions = conditions.reset_index(drop=True)
         self.space = space
         if velocity_frame not in SPEED_COLUMN:
@@ -108,6 +110,7 @@ class EmulatedTwin:
         self.base_names = tuple(space.base_names)
         self.held = {}
         self.seed = seed
+        self.fit_cache = fit_cache
         from analysis.catalog import candidates
         obs_c = candidates("observation")
         bad = [n for n in observation if n not in obs_c]
@@ -213,7 +216,8 @@ class EmulatedTwin:
             raise ValueError("no run has every emulated observable finite (%s)"
                              % ", ".join(self.observables))
         X, modes, kept = self.inputs_of(runs)[keep], modes[keep], runs[keep]
-        self.mode_classifier_ = ModeClassifier(b, random_state=self.seed).fit(X, modes)
+        self.mode_classifier_ = ModeClassifier(b, random_state=self.seed,
+                                               fit_cache=self.fit_cache).fit(X, modes)
         self.emulators_ = {}
         for o in self.observables:
             y = kept[o].to_numpy(float) if o in kept else np.full(len(kept), np.nan)
@@ -226,7 +230,7 @@ class EmulatedTwin:
                 em = GPEmulator(b, outputs=(o,), nu=2.5, trend=True,
                                 log_outputs=tuple(x for x in LOG_OBSERVABLES if x == o),
                                 noise_keys=CONDITION_INPUTS, n_restarts_optimizer=1,
-                                random_state=self.seed)
+                                random_state=self.seed, fit_cache=self.fit_cache)
                 self.emulators_[o][k] = em.fit(X[ok], pd.DataFrame({o: y[ok]}))
         self.runs_ = runs.reset_index(drop=True)
         self._memo = {}

@@ -65,6 +65,9 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import (ConstantKernel, DotProduct, Matern,
                                               WhiteKernel)
 
+from analysis.fit_cache import Replay, Search, hyperparameters, kernels_with
+
+
 #: two-sided 95 % normal quantile
 Z95 = 1.959964
 #: noise groups with replicates needed to carry the chaos as a known per-run noise (fewer: the
@@ -167,6 +170,8 @@ class GPEmulator(_UnitCube):
         the module docstring); None: the nugget learns one chaos level per output
     n_restarts_optimizer : int - restarts of the hyperparameter optimiser
     random_state : int or None
+    fit_cache : :class:`analysis.fit_cache.FitCache` or None - where earlier fits'
+        hyperparameters are kept (a fit of the same data reuses them: the same model, faster)
 
     Attributes
     ----------
@@ -177,8 +182,10 @@ class GPEmulator(_UnitCube):
     """
 
     def __init__(self, bounds, outputs=("v_mean_m_s", "f_col_hz"), nu=2.5, trend=False,
-                 log_outputs=(), noise_keys=None, n_restarts_optimizer=2, random_state=None):
+                 log_outputs=(), noise_keys=None, n_restarts_optimizer=2, random_state=None,
+                 fit_cache=None):
         self.bounds = bounds
+        self.fit_cache = fit_cache
         self.outputs = outputs
         self.nu = nu
         self.trend = trend
@@ -323,19 +330,31 @@ class GPEmulator(_UnitCube):
         for j in range(Y.shape[1]):
             y_sd = float(np.std(Y[:, j])) or 1.0
             a = 1e-10 if alpha is None else np.maximum(alpha[:, j], 1e-12) / y_sd ** 2
-            gp = GaussianProcessRegressor(kernel=self._kernel(Xs.shape[1]), alpha=a,
-                                          normalize_y=True,
-                                          n_restarts_optimizer=self.n_restarts_optimizer,
-                                          random_state=self.random_state)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", ConvergenceWarning)
-                gp.fit(Xs, Y[:, j])
-            self.gps_.append(gp)
+            self.gps_.append(self._fit_gp(Xs, Y[:, j], a))
         self.nugget_var_ = np.array([gp.kernel_.k2.noise_level * gp._y_train_std ** 2
                                      for gp in self.gps_])
         self.n_train_ = len(Xs)
         self.loo_ = self.loo_report()
         return self
+
+    def _fit_gp(self, Xs, y, alpha) -> GaussianProcessRegressor:
+        """One output's GP on scaled inputs; its hyperparameters optimised, or replayed from
+        ``fit_cache`` when these data were fitted before (the same model, bit for bit)."""
+        kernel, cache = self._kernel(Xs.shape[1]), self.fit_cache
+        key = cache and cache.key("gpr", kernel, Xs, y, alpha, restarts=self.n_restarts_optimizer,
+                                  seed=self.random_state)
+        replay = cache and Replay.of(cache.get(key), kernel)
+        search = replay or Search()
+        gp = GaussianProcessRegressor(kernel=kernel, alpha=alpha, normalize_y=True,
+                                      optimizer=search,
+                                      n_restarts_optimizer=self.n_restarts_optimizer,
+                                      random_state=self.random_state)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gp.fit(Xs, y)
+        if cache and not replay:
+            cache.put(key, search.best())
+        return gp
 
     # ---------------------------------------------------------------------------- predict
     def noise_sd(self):
@@ -496,16 +515,18 @@ class ModeClassifier(_UnitCube):
     bounds : dict name -> (lower, upper) - inputs, as :class:`GPEmulator`'s
     random_state : int or None
     n_restarts_optimizer : int
+    fit_cache : :class:`analysis.fit_cache.FitCache` or None - as :class:`GPEmulator`'s
 
     Attributes (after :meth:`fit`)
     ----------
     modes_ : list of str - the modes, in the order of :meth:`predict_proba`'s columns
     """
 
-    def __init__(self, bounds, random_state=None, n_restarts_optimizer=1):
+    def __init__(self, bounds, random_state=None, n_restarts_optimizer=1, fit_cache=None):
         self.bounds = bounds
         self.random_state = random_state
         self.n_restarts_optimizer = n_restarts_optimizer
+        self.fit_cache = fit_cache
 
     def fit(self, X, modes):
         """Learn p(mode | x) from runs' inputs X and their modes (a sequence of labels)."""
@@ -516,17 +537,34 @@ class ModeClassifier(_UnitCube):
             raise ValueError("X has %d rows, modes %d" % (len(Xs), len(labels)))
         self.modes_ = sorted(set(labels))
         self.gpc_ = None
-        if len(self.modes_) > 1:
-            kern = (ConstantKernel(1.0, (1e-2, 1e3))
-                    * Matern(length_scale=np.full(Xs.shape[1], 0.5),
-                             length_scale_bounds=(1e-2, 1e2), nu=2.5))
-            self.gpc_ = GaussianProcessClassifier(
-                kern, n_restarts_optimizer=self.n_restarts_optimizer,
-                random_state=self.random_state)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", ConvergenceWarning)
-                self.gpc_.fit(Xs, labels)
+        if len(self.modes_) < 2:
+            return self
+        kern = (ConstantKernel(1.0, (1e-2, 1e3))
+                * Matern(length_scale=np.full(Xs.shape[1], 0.5),
+                         length_scale_bounds=(1e-2, 1e2), nu=2.5))
+        cache, n_bin = self.fit_cache, (1 if len(self.modes_) == 2 else len(self.modes_))
+        key = cache and cache.key("gpc", kern, Xs, labels, restarts=self.n_restarts_optimizer,
+                                  seed=self.random_state)
+        found = cache and cache.get(key, kind=list)
+        known = found and kernels_with(kern, found, n_bin)
+        self.gpc_ = GaussianProcessClassifier(
+            known[0] if known else kern, optimizer=None if known else "fmin_l_bfgs_b",
+            n_restarts_optimizer=self.n_restarts_optimizer, random_state=self.random_state)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            self.gpc_.fit(Xs, labels)
+            binaries = self._binaries()
+            if known and n_bin > 1:         # one-vs-rest: each mode's classifier its own kernel
+                for est, k, mode in zip(binaries, known, self.gpc_.classes_):
+                    est.set_params(kernel=k).fit(Xs, (labels == mode).astype(int))
+        if cache and not known:
+            cache.put(key, [hyperparameters(est.kernel_) for est in binaries])
         return self
+
+    def _binaries(self) -> list:
+        """The fitted binary classifiers: one, or one per mode (one-vs-rest)."""
+        base = self.gpc_.base_estimator_
+        return list(getattr(base, "estimators_", [base]))
 
     def predict_proba(self, X) -> np.ndarray:
         """(n, n_modes) probabilities of each mode at X (columns in the order of ``modes_``)."""

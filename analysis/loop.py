@@ -647,9 +647,10 @@ def loop_space(dataset, extra_effects=(), free=(), base=DEFAULT_BASE):
 
 
 def read_stage(dataset, settings, *, base_config=None, track_cache=None, progress=True,
-               log=print, track=True) -> LoopState:
+               log=print, track=True, fit_cache=None) -> LoopState:
     """Track the dataset's films (cached; not with ``track=False``), read its observations,
-    set up the model."""
+    set up the model (its emulators' fits remembered in ``fit_cache``, an
+    :class:`analysis.fit_cache.FitCache`, when given)."""
     from analysis.emulated_twin import EmulatedTwin
     tracking, tracks = None, {}
     if track and dataset.video_files and any(c not in dataset.tracks
@@ -679,7 +680,7 @@ def read_stage(dataset, settings, *, base_config=None, track_cache=None, progres
                          observation=[n for n in settings.extra_effects
                                       if candidates()[n].kind == "observation"
                                       and n not in pins],
-                         pinned=pins)
+                         pinned=pins, fit_cache=fit_cache)
     asked = set(settings.base) | {n for n, _, _ in settings.free}
     if "amplitude_m" in asked and "amplitude_m" not in space.base_names:
         model.held["amplitude_m"] = "stated by the dataset"
@@ -1008,9 +1009,12 @@ def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None
     """The stages in order (read, build, calibrate, select, focus, confirm, intervals) on one
     state, returned: what :func:`run_loop` reports, and what a calibration
     (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
+    from analysis.fit_cache import FitCache
     s = (settings or LoopSettings()).check()
+    runs_dir = getattr(twin, "runs_dir", None)
     state = read_stage(dataset, s, base_config=base_config, track_cache=track_cache,
-                       progress=progress, log=log)
+                       progress=progress, log=log,
+                       fit_cache=FitCache.beside(runs_dir) if runs_dir is not None else None)
     build_stage(state, twin, log)
     calibrate_stage(state)
     select_stage(state, log)

@@ -425,3 +425,46 @@ def test_block_correlations_are_the_gps_posterior_covariance():
         d = np.sqrt(np.diag(C))
         assert np.allclose(p.latent_corr[k, 0], C / np.outer(d, d), atol=1e-9)
         assert np.allclose(p.latent_sd[6 * k:6 * k + 6, 0], d * gp._y_train_std, rtol=1e-6)
+
+
+def test_a_cached_fit_is_the_same_model_bit_for_bit(tmp_path):
+    """A refit of the same runs replays the cached hyperparameters: the same predictions to the
+    last digit as the optimised fit (and as a fit without the cache), no new cache file; the
+    replayed numbers are the ones used (an altered entry moves the prediction); another
+    training set is another entry; an unreadable entry is a miss that is written again."""
+    import json
+    from analysis.emulator import ModeClassifier
+    from analysis.fit_cache import FitCache
+    cache = FitCache(tmp_path / "fits")
+    X, _ = design(np.random.default_rng(3), n_points=12, replicates=2)
+    y = runs_at(X, np.random.default_rng(4))
+    Xt = np.random.default_rng(5).uniform([0.1, 0, 20], [0.7, 1, 32], (40, 3))
+
+    def fit(y, **kw):
+        return GPEmulator(BOUNDS, outputs=("y",), trend=True, noise_keys=("f",), random_state=0,
+                          n_restarts_optimizer=1, **kw).fit(X, y).predict(Xt, return_std=True)
+
+    plain, first = fit(y), fit(y, fit_cache=cache)
+    files = sorted(cache.folder.iterdir())
+    assert len(files) == 1
+    again = fit(y, fit_cache=cache)
+    assert sorted(cache.folder.iterdir()) == files
+    for a, b, c in zip(plain, first, again):
+        assert np.array_equal(a, b) and np.array_equal(b, c)
+    entry = json.loads(files[0].read_text())
+    entry["theta"][1] += 1.0                     # a 2.7x longer length scale of cr
+    files[0].write_text(json.dumps(entry))
+    assert not np.array_equal(fit(y, fit_cache=cache)[0], plain[0])
+    files[0].write_text("{not json")
+    assert np.array_equal(fit(y, fit_cache=cache)[0], plain[0])
+    assert json.loads(files[0].read_text())["theta"] == pytest.approx(entry["theta"][:1]
+                                                                       + [entry["theta"][1] - 1]
+                                                                       + entry["theta"][2:])
+    fit(y + 0.01, fit_cache=cache)
+    assert len(list(cache.folder.iterdir())) == 2
+    for labels in (np.where(X[:, 0] > 0.4, "a", "b"),
+                   np.where(X[:, 0] > 0.5, "a", np.where(X[:, 2] > 25, "b", "c"))):
+        p = [ModeClassifier(BOUNDS, random_state=1, fit_cache=c).fit(X, labels).predict_proba(Xt)
+             for c in (None, cache, cache)]
+        assert np.array_equal(p[0], p[1]) and np.array_equal(p[1], p[2])
+    assert len(list(cache.folder.iterdir())) == 4

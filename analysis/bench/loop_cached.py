@@ -1,0 +1,85 @@
+"""The loop with every twin run already made: its analysis alone, without and with the emulator
+fits of an earlier pass (:mod:`analysis.fit_cache`).
+
+Default dataset: Table 3 (data/measurements/paper_table3, the demo's loop), whose runs are all in
+the committed run table (data/twin_runs/runs.csv). Both passes read them from there into a fresh
+temporary runs folder (budget 0: no twin run starts); the first finds no cached fit and optimises
+every emulator's hyperparameters, the second replays them. Prints and writes
+``results/bench/loop_cached.txt``: both wall times, their ratio, whether the two passes wrote the
+same tables (they must: a replayed fit is the same model), the machine's load before the start.
+
+    python -m analysis.bench.loop_cached [--dataset D] [--option=--per-wave --option=6 ...]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from analysis.config import PAPER_TABLE3_DIR, RESULTS_DIR
+
+OUT = RESULTS_DIR / "bench" / "loop_cached.txt"
+#: the tables compared between the passes
+TABLES = ("steps", "parameters", "staircase", "comparison", "diagnosis")
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="example: python -m analysis.bench.loop_cached --dataset "
+                                "data/measurements/paper_table3")
+    p.add_argument("--dataset", default=str(PAPER_TABLE3_DIR),
+                   help="dataset folder whose loop's runs are all committed (default: %(default)s)")
+    p.add_argument("--option", action="append", default=[], metavar="ARG",
+                   help="an argument passed on to python -m analysis.loop (repeatable; write "
+                        "--option=--per-wave --option=6)")
+    a = p.parse_args(argv)
+    from analysis import loop
+    from analysis.twin_runs import BudgetError, TwinRuns
+    tmp = Path(tempfile.mkdtemp(prefix="bench-loop-cached-"))
+    load = os.getloadavg()[0]
+    lines, walls = [], []
+    try:
+        for label in ("no cached fit", "fits cached"):
+            out = tmp / label.replace(" ", "_")
+            t0 = time.perf_counter()
+            args = loop.build_parser().parse_args(["--dataset", a.dataset, "--out", str(out),
+                                                   "--workers", "1", *a.option])
+            ds, settings, base_config, _ = loop.prepare(args)
+            twin = TwinRuns(runs_dir=tmp / "runs", budget_runs=0, workers=1,
+                            base_config=base_config)
+            try:
+                res = loop.run_loop(ds, settings, twin=twin, base_config=base_config,
+                                    log=lambda s: print(s, file=sys.stderr))
+            except BudgetError as exc:
+                print("analysis.bench.loop_cached: not every run of the loop is committed: %s"
+                      % exc, file=sys.stderr)
+                return 3
+            loop.write_loop(res, out, ds, protected=[a.dataset])
+            walls.append(time.perf_counter() - t0)
+            lines.append("%s: %.1f s" % (label, walls[-1]))
+            print(lines[-1], flush=True)
+        first, second = (tmp / l.replace(" ", "_") for l in ("no cached fit", "fits cached"))
+        same = all((first / (t + ".csv")).read_bytes() == (second / (t + ".csv")).read_bytes()
+                   for t in TABLES)
+        lines.append("ratio %.2f; the two passes' tables (%s) %s"
+                     % (walls[1] / walls[0], ", ".join(TABLES),
+                        "identical" if same else "DIFFER"))
+        print(lines[-1])
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    head = ("the loop on %s from the committed runs, 1 core for the analysis; load average "
+            "before the start %.2f on %d cores" % (Path(a.dataset).name, load,
+                                                    os.cpu_count() or 0))
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text("\n".join([head] + lines) + "\n")
+    print(head)
+    print("wrote %s" % OUT)
+    return 0 if same else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,139 @@
+"""Fitted Gaussian-process hyperparameters, remembered by what they were fitted to.
+
+A loop run again on the same twin runs (from the run cache or the committed run table) refits
+its emulators on exactly the same training data with the same seeds; the hyperparameter
+optimiser's restarts are about half of such a loop's time. The cache keeps each fit's optimised
+hyperparameters under a hash of everything the optimiser saw - the kernel with its bounds, the
+training inputs and targets, the per-run noise, the optimiser's restarts and seed, and
+scikit-learn's version - and a fit that finds its key refits with them held (one Cholesky
+factorisation instead of an optimisation): the same model, bit for bit.
+
+One small JSON file per fit, ``<runs dir>/emulator_fits/<key>.json`` beside the twin runs the
+fits came from. A file that does not parse or does not fit the kernel is a miss (the fit
+optimises and writes it again); deleting the folder costs only time.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+import sklearn
+from sklearn.base import clone
+
+from analysis.atomic_dir import atomic_file
+
+#: the cache's folder inside a twin-runs folder
+FOLDER = "emulator_fits"
+
+
+def hyperparameters(kernel) -> dict:
+    """{name: value} of a kernel's free hyperparameters, in its own (not log) units."""
+    params = kernel.get_params()
+    return {h.name: np.asarray(params[h.name], float).tolist() for h in kernel.hyperparameters
+            if not h.fixed}
+
+
+def with_hyperparameters(kernel, values: dict):
+    """A copy of ``kernel`` with the hyperparameters ``values`` (from :func:`hyperparameters`)."""
+    names = {h.name for h in kernel.hyperparameters if not h.fixed}
+    if set(values) != names:
+        raise ValueError("cached hyperparameters %s do not match the kernel's %s"
+                         % (sorted(values), sorted(names)))
+    return clone(kernel).set_params(
+        **{k: (np.asarray(v, float) if np.ndim(v) else float(v)) for k, v in values.items()})
+
+
+def kernels_with(kernel, found, n: int) -> list | None:
+    """``n`` copies of ``kernel``, each with the hyperparameters of one entry of ``found`` (a
+    list of :func:`hyperparameters`), or None when they do not fit it."""
+    if not isinstance(found, list) or len(found) != n:
+        return None
+    try:
+        return [with_hyperparameters(kernel, v) for v in found]
+    except (ValueError, TypeError):
+        return None
+
+
+class Search:
+    """scikit-learn's own hyperparameter search of a regressor (the same L-BFGS-B call as its
+    ``optimizer="fmin_l_bfgs_b"``), remembering each start's optimum so that the chosen one
+    can be cached exactly (a fitted kernel gives its hyperparameters back only through a log
+    and an exp, which may move the last digit)."""
+
+    def __init__(self):
+        self.optima = []
+
+    def __call__(self, obj_func, initial_theta, bounds):
+        res = scipy.optimize.minimize(obj_func, initial_theta, method="L-BFGS-B", jac=True,
+                                      bounds=bounds)
+        self.optima.append((np.asarray(res.x, float), float(res.fun)))
+        return res.x, res.fun
+
+    def best(self) -> dict:
+        """The optimum the regressor chose (the first of the lowest): {"theta", "fun"}."""
+        theta, fun = self.optima[int(np.argmin([f for _, f in self.optima]))]
+        return {"theta": theta.tolist(), "fun": fun}
+
+
+class Replay:
+    """An "optimiser" that returns a cached optimum at once (every start): the regressor then
+    sets exactly the hyperparameters :class:`Search` found."""
+
+    def __init__(self, theta, fun):
+        self.theta, self.fun = theta, fun
+
+    @classmethod
+    def of(cls, found, kernel) -> "Replay | None":
+        """The replay of :meth:`Search.best`'s ``found`` for ``kernel``, None if it does not
+        fit it (not cached, or a file written for something else)."""
+        try:
+            theta, fun = np.asarray(found["theta"], float), float(found["fun"])
+        except (TypeError, KeyError, ValueError):
+            return None
+        ok = theta.shape == kernel.theta.shape and np.isfinite(theta).all()
+        return cls(theta, fun) if ok else None
+
+    def __call__(self, obj_func, initial_theta, bounds):
+        return self.theta.copy(), self.fun
+
+
+class FitCache:
+    """Earlier fits' hyperparameters in ``folder`` (see the module docstring)."""
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+
+    @classmethod
+    def beside(cls, runs_dir) -> "FitCache":
+        """The cache of the fits made from the twin runs in ``runs_dir``."""
+        return cls(Path(runs_dir) / FOLDER)
+
+    @staticmethod
+    def key(kind: str, kernel, *arrays, **settings) -> str:
+        """Hash of a fit's kind, initial kernel, training arrays and optimiser settings."""
+        h = hashlib.sha256()
+        h.update(repr((kind, sklearn.__version__, repr(kernel), sorted(settings.items())))
+                 .encode())
+        for a in (kernel.theta, kernel.bounds) + arrays:
+            a = np.ascontiguousarray(a)
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(a.tobytes() if a.dtype != object else repr(a.tolist()).encode())
+        return h.hexdigest()[:32]
+
+    def get(self, key: str, kind=dict):
+        """What :meth:`put` kept under ``key`` if it is a ``kind``, else None (not cached, or
+        a file that does not parse)."""
+        try:
+            found = json.loads((self.folder / (key + ".json")).read_text())
+        except (OSError, ValueError):
+            return None
+        return found if isinstance(found, kind) else None
+
+    def put(self, key: str, found) -> None:
+        """Keep ``found`` (JSON: floats keep every digit) under ``key``, written atomically:
+        processes sharing the folder never read half a file."""
+        with atomic_file(self.folder / (key + ".json")) as tmp:
+            tmp.write_text(json.dumps(found))
