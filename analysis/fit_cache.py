@@ -9,8 +9,10 @@ scikit-learn's version - and a fit that finds its key refits with them held (one
 factorisation instead of an optimisation): the same model, bit for bit.
 
 One small JSON file per fit, ``<runs dir>/emulator_fits/<key>.json`` beside the twin runs the
-fits came from. A file that does not parse or does not fit the kernel is a miss (the fit
-optimises and writes it again); deleting the folder costs only time.
+fits came from; the loop also reads the committed ones of ``make demo``'s loops
+(:data:`COMMITTED_FITS`), so that a fresh clone's demo replays them. A file that does not parse
+or does not fit the kernel is a miss (the fit optimises and writes it again); deleting the
+folder costs only time.
 """
 from __future__ import annotations
 
@@ -24,9 +26,12 @@ import sklearn
 from sklearn.base import clone
 
 from analysis.atomic_dir import atomic_file
+from analysis.config import DATA_DIR
 
 #: the cache's folder inside a twin-runs folder
 FOLDER = "emulator_fits"
+#: the committed fits of make demo's loops (read only; data/twin_runs/README.md)
+COMMITTED_FITS = DATA_DIR / "twin_runs" / FOLDER
 
 
 def hyperparameters(kernel) -> dict:
@@ -101,15 +106,17 @@ class Replay:
 
 
 class FitCache:
-    """Earlier fits' hyperparameters in ``folder`` (see the module docstring)."""
+    """Earlier fits' hyperparameters in ``folder``, else in the read-only folders ``also``
+    (see the module docstring); new fits are written to ``folder``."""
 
-    def __init__(self, folder):
+    def __init__(self, folder, also=()):
         self.folder = Path(folder)
+        self.also = tuple(Path(f) for f in also)
 
     @classmethod
-    def beside(cls, runs_dir) -> "FitCache":
+    def beside(cls, runs_dir, also=()) -> "FitCache":
         """The cache of the fits made from the twin runs in ``runs_dir``."""
-        return cls(Path(runs_dir) / FOLDER)
+        return cls(Path(runs_dir) / FOLDER, also)
 
     @staticmethod
     def key(kind: str, kernel, *arrays, **settings) -> str:
@@ -126,11 +133,14 @@ class FitCache:
     def get(self, key: str, kind=dict):
         """What :meth:`put` kept under ``key`` if it is a ``kind``, else None (not cached, or
         a file that does not parse)."""
-        try:
-            found = json.loads((self.folder / (key + ".json")).read_text())
-        except (OSError, ValueError):
-            return None
-        return found if isinstance(found, kind) else None
+        for folder in (self.folder,) + self.also:
+            try:
+                found = json.loads((folder / (key + ".json")).read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(found, kind):
+                return found
+        return None
 
     def put(self, key: str, found) -> None:
         """Keep ``found`` (JSON: floats keep every digit) under ``key``, written atomically:

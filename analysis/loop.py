@@ -1009,12 +1009,12 @@ def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None
     """The stages in order (read, build, calibrate, select, focus, confirm, intervals) on one
     state, returned: what :func:`run_loop` reports, and what a calibration
     (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
-    from analysis.fit_cache import FitCache
+    from analysis.fit_cache import COMMITTED_FITS, FitCache
     s = (settings or LoopSettings()).check()
     runs_dir = getattr(twin, "runs_dir", None)
+    fits = None if runs_dir is None else FitCache.beside(runs_dir, also=[COMMITTED_FITS])
     state = read_stage(dataset, s, base_config=base_config, track_cache=track_cache,
-                       progress=progress, log=log,
-                       fit_cache=FitCache.beside(runs_dir) if runs_dir is not None else None)
+                       progress=progress, log=log, fit_cache=fits)
     build_stage(state, twin, log)
     calibrate_stage(state)
     select_stage(state, log)

@@ -468,3 +468,22 @@ def test_a_cached_fit_is_the_same_model_bit_for_bit(tmp_path):
              for c in (None, cache, cache)]
         assert np.array_equal(p[0], p[1]) and np.array_equal(p[1], p[2])
     assert len(list(cache.folder.iterdir())) == 4
+
+
+def test_a_fit_found_only_in_the_committed_folder_is_replayed_and_never_written_there(tmp_path):
+    """The loop's cache reads the committed fits after its own folder: a fit found only there
+    is the same model, and nothing is written to the committed folder."""
+    from analysis.fit_cache import FitCache
+    X, _ = design(np.random.default_rng(3), n_points=10, replicates=2)
+    y = runs_at(X, np.random.default_rng(4))
+
+    def fit(cache):
+        return GPEmulator(BOUNDS, outputs=("y",), trend=True, noise_keys=("f",), random_state=0,
+                          n_restarts_optimizer=1, fit_cache=cache).fit(X, y).predict(X[:5])
+
+    made = fit(FitCache(tmp_path / "committed"))
+    committed = sorted((tmp_path / "committed").iterdir())
+    replayed = fit(FitCache(tmp_path / "own", also=[tmp_path / "committed"]))
+    assert np.array_equal(made, replayed)
+    assert not (tmp_path / "own").exists()
+    assert sorted((tmp_path / "committed").iterdir()) == committed

@@ -176,7 +176,8 @@ def test_fake_runs_carry_impact_observables(tmp_path):
 
 def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
     """A dataset whose tracks carry the jar (the impact observables): the --fake loop fits
-    them too (it stopped at 'no run has every emulated observable finite')."""
+    them too (it stopped at 'no run has every emulated observable finite'); its emulator fits
+    are kept beside its runs (replayed by the next loop on them: test_emulator)."""
     from analysis.config import RESULTS_DIR
     monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", tmp_path / "fake_runs")
     out = tmp_path / "out"
@@ -185,6 +186,9 @@ def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
                     "--focus-points", "0", "--no-rerun", "--no-intervals", "--max-effects",
                     "0", "--workers", "1"])
     assert rc == 0
+    # one fit (no wave after wave 0), one motion mode: a GP per observable (speed, f_col and
+    # the five impact observables), no classifier
+    assert len(list((tmp_path / "fake_runs" / "emulator_fits").glob("*.json"))) == 7
     info = json.loads((out / "loop.json").read_text())
     assert len(info["flight_conditions"]) == 6
     c = pd.read_csv(out / "comparison.csv")
