@@ -144,6 +144,10 @@ class FitCache:
 
     def put(self, key: str, found) -> None:
         """Keep ``found`` (JSON: floats keep every digit) under ``key``, written atomically:
-        processes sharing the folder never read half a file."""
-        with atomic_file(self.folder / (key + ".json")) as tmp:
-            tmp.write_text(json.dumps(found))
+        processes sharing the folder never read half a file. A folder that cannot be written
+        (read-only, full) only loses the cache."""
+        try:
+            with atomic_file(self.folder / (key + ".json")) as tmp:
+                tmp.write_text(json.dumps(found))
+        except OSError:
+            pass

@@ -487,3 +487,14 @@ def test_a_fit_found_only_in_the_committed_folder_is_replayed_and_never_written_
     assert np.array_equal(made, replayed)
     assert not (tmp_path / "own").exists()
     assert sorted((tmp_path / "committed").iterdir()) == committed
+
+
+def test_a_fit_cache_that_cannot_be_written_only_loses_the_cache(tmp_path):
+    """A cache folder that cannot be made (a file stands where it should be) is no error."""
+    from analysis.fit_cache import FitCache
+    (tmp_path / "blocked").write_text("a file, not a folder")
+    X, _ = design(np.random.default_rng(3), n_points=10, replicates=2)
+    y = runs_at(X, np.random.default_rng(4))
+    em = GPEmulator(BOUNDS, outputs=("y",), trend=True, noise_keys=("f",), random_state=0,
+                    n_restarts_optimizer=1, fit_cache=FitCache(tmp_path / "blocked" / "fits"))
+    assert np.isfinite(em.fit(X, y).predict(X[:3])).all()
