@@ -10,12 +10,13 @@ export PYTHONHASHSEED := 0
 export OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: all setup venv yade test test-fast demo geometry facet-study timestep-study report \
+.PHONY: all setup venv yade test test-fast demo demo-fits geometry facet-study timestep-study report \
         bench-dem bench-profile bench-loop bench-loop-cached bench-tracking bench-predict bench-sweep clean help surrogate-runs surrogate \
         loop open-world open-world-full calibrate apparatus emulator-check vf-study table3-chain
 
 help:
 	@echo "make demo   - the twin on Table 3, then the loop (calibrate, diagnose and add, twin rerun) -> results/demo/README.md, results/demo/loop/"
+	@echo "make demo-fits - the demo's two loops from the committed runs; the emulator fits they use -> data/twin_runs/emulator_fits/ (replayed by make demo)"
 	@echo "make test   - the test suite (installs YADE and the venv when missing)"
 	@echo "make loop DATASET=data/measurements/NAME [OUT=results/loop/NAME] - the whole loop on a dataset -> OUT/report.md, diagnosis.csv, staircase.csv, loop.json"
 	@echo "make calibrate - calibrate C_R, SF, RF, stroke on Table 3 -> results/calibration/summary.json"
@@ -58,6 +59,9 @@ geometry: venv
 
 demo: setup
 	$(VPY) -m analysis.demo
+
+demo-fits: venv
+	$(VPY) -m analysis.demo --remake-fits --workers 1
 
 facet-study: setup
 	$(VPY) -m analysis.studies.facet_convergence

@@ -30,6 +30,10 @@ its plan instead when it needs more.
 
     python -m analysis.demo [--replicates 4] [--workers 2] [--record-s 0.5] [--no-loop]
                             [--loop-budget-runs 150]
+
+The two loops replay the committed emulator fits (data/twin_runs/emulator_fits/,
+:mod:`analysis.fit_cache`); ``python -m analysis.demo --remake-fits`` (make demo-fits) remakes
+them from the committed runs after the emulator or :data:`DEMO_LOOPS` change.
 """
 import argparse
 import sys
@@ -167,6 +171,32 @@ def demo_loops(out, workers, budget_runs=DEMO_LOOP_BUDGET_RUNS) -> list:
     return lines
 
 
+def remake_demo_fits(workers=1, log=print) -> int:
+    """Run :data:`DEMO_LOOPS` from the committed run table in an empty runs folder (no new
+    twin run: a missing one is a :class:`analysis.twin_runs.BudgetError`); the emulator fits
+    they used replace data/twin_runs/emulator_fits/, what a fresh clone's demo replays.
+    Returns the number of fits."""
+    import shutil
+    import tempfile
+    from analysis import loop
+    from analysis.fit_cache import FOLDER, replace_fits
+    from analysis.twin_runs import TwinRuns
+    tmp = Path(tempfile.mkdtemp(prefix="demo-fits-"))
+    try:
+        for sub, ds, words, extra in DEMO_LOOPS:
+            log("the loop on %s" % words)
+            args = loop.build_parser().parse_args(["--dataset", str(ds), "--out",
+                                                   str(tmp / "out" / sub), "--workers",
+                                                   str(workers), *extra])
+            d, settings, base, _ = loop.prepare(args)
+            twin = TwinRuns(runs_dir=tmp / "runs", budget_runs=0, workers=workers,
+                            base_config=base)
+            loop.run_loop(d, settings, twin=twin, base_config=base, log=log)
+        return replace_fits(tmp / "runs" / FOLDER)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
@@ -181,7 +211,21 @@ def main(argv=None):
     p.add_argument("--loop-budget-runs", type=int, default=DEMO_LOOP_BUDGET_RUNS,
                    help="new twin runs each loop may make where the committed run table lacks "
                    "them [runs] (default %(default)s; 0: the committed runs only)")
+    p.add_argument("--remake-fits", action="store_true",
+                   help="only run the two loops from the committed runs and write the emulator "
+                   "fits they use to data/twin_runs/emulator_fits/ (no new twin run)")
     a = p.parse_args(argv)
+    if a.remake_fits:
+        from analysis.atomic_dir import OutputError
+        from analysis.fit_cache import COMMITTED_FITS
+        from analysis.twin_runs import BudgetError
+        try:
+            n = remake_demo_fits(a.workers, log=lambda s: print(s, file=sys.stderr))
+        except (BudgetError, OutputError) as exc:
+            print("analysis.demo: error: %s" % exc, file=sys.stderr)
+            return 2
+        print("wrote %d emulator fits to %s" % (n, COMMITTED_FITS))
+        return 0
     if a.replicates < 1 or a.workers < 1 or a.record_s <= 0:
         print("analysis.demo: error: replicates, workers and record-s must be positive",
               file=sys.stderr)

@@ -18,6 +18,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import re
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +29,7 @@ import scipy.optimize
 import sklearn
 from sklearn.base import clone
 
-from analysis.atomic_dir import atomic_file
+from analysis.atomic_dir import OutputError, atomic_file
 from analysis.config import DATA_DIR
 
 #: the cache's folder inside a twin-runs folder
@@ -139,6 +143,8 @@ class FitCache:
             except (OSError, ValueError):
                 continue
             if isinstance(found, kind):
+                if folder != self.folder:       # copied: the own folder holds every fit used
+                    self.put(key, found)
                 return found
         return None
 
@@ -151,3 +157,33 @@ class FitCache:
                 tmp.write_text(json.dumps(found))
         except OSError:
             pass
+
+
+def is_fit_file(path) -> bool:
+    """A file this cache writes: ``<32 hex digits>.json``."""
+    return Path(path).is_file() and re.fullmatch(r"[0-9a-f]{32}\.json", Path(path).name) is not None
+
+
+def replace_fits(new, dest=COMMITTED_FITS) -> int:
+    """Make the folder ``dest`` hold exactly the fit files of the folder ``new`` (copied; the
+    old ones swapped out at once). Refused (:class:`OutputError`, nothing changed) when
+    ``dest`` holds anything this cache did not write. Returns the number of fits."""
+    dest = Path(dest)
+    if dest.exists() and not all(is_fit_file(p) for p in dest.iterdir()):
+        raise OutputError("%s holds files that are not emulator fits; it is left as it is"
+                          % dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".%s.tmp-" % dest.name, dir=dest.parent))
+    try:
+        fits = [p for p in Path(new).iterdir() if is_fit_file(p)]
+        for p in fits:
+            shutil.copy2(p, tmp / p.name)
+        os.chmod(tmp, 0o755)
+        old = tmp.with_name(tmp.name.replace(".tmp-", ".old-"))
+        if dest.exists():
+            os.replace(dest, old)
+        os.replace(tmp, dest)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return len(fits)

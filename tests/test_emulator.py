@@ -472,7 +472,8 @@ def test_a_cached_fit_is_the_same_model_bit_for_bit(tmp_path):
 
 def test_a_fit_found_only_in_the_committed_folder_is_replayed_and_never_written_there(tmp_path):
     """The loop's cache reads the committed fits after its own folder: a fit found only there
-    is the same model, and nothing is written to the committed folder."""
+    is the same model, copied to the own folder (which so holds every fit a loop used), and
+    nothing is written to the committed folder."""
     from analysis.fit_cache import FitCache
     X, _ = design(np.random.default_rng(3), n_points=10, replicates=2)
     y = runs_at(X, np.random.default_rng(4))
@@ -485,7 +486,7 @@ def test_a_fit_found_only_in_the_committed_folder_is_replayed_and_never_written_
     committed = sorted((tmp_path / "committed").iterdir())
     replayed = fit(FitCache(tmp_path / "own", also=[tmp_path / "committed"]))
     assert np.array_equal(made, replayed)
-    assert not (tmp_path / "own").exists()
+    assert [p.name for p in (tmp_path / "own").iterdir()] == [p.name for p in committed]
     assert sorted((tmp_path / "committed").iterdir()) == committed
 
 
@@ -498,3 +499,22 @@ def test_a_fit_cache_that_cannot_be_written_only_loses_the_cache(tmp_path):
     em = GPEmulator(BOUNDS, outputs=("y",), trend=True, noise_keys=("f",), random_state=0,
                     n_restarts_optimizer=1, fit_cache=FitCache(tmp_path / "blocked" / "fits"))
     assert np.isfinite(em.fit(X, y).predict(X[:3])).all()
+
+
+def test_committed_fits_are_replaced_whole_and_only_when_all_are_fits(tmp_path):
+    """replace_fits swaps the folder's fit files for the new ones (no stale one left) and
+    refuses, changing nothing, a folder holding anything else."""
+    from analysis.atomic_dir import OutputError
+    from analysis.fit_cache import replace_fits
+    new, dest = tmp_path / "new", tmp_path / "dest"
+    new.mkdir(), dest.mkdir()
+    (new / ("a" * 32 + ".json")).write_text("{}")
+    (new / "notes.txt").write_text("not a fit")
+    (dest / ("b" * 32 + ".json")).write_text("{}")
+    assert replace_fits(new, dest) == 1
+    assert [p.name for p in dest.iterdir()] == ["a" * 32 + ".json"]
+    (dest / "mine.txt").write_text("a user's file")
+    with pytest.raises(OutputError, match="not emulator fits"):
+        replace_fits(new, dest)
+    assert sorted(p.name for p in dest.iterdir()) == ["a" * 32 + ".json", "mine.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dest", "new"]
