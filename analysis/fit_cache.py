@@ -2,7 +2,8 @@
 
 A loop run again on the same twin runs (from the run cache or the committed run table) refits
 its emulators on exactly the same training data with the same seeds; the hyperparameter
-optimiser's restarts are about half of such a loop's time. The cache keeps each fit's optimised
+optimiser's restarts are about half of such a loop's time on Table 3 (a tenth at six
+conditions, where the bootstrap draws take most). The cache keeps each fit's optimised
 hyperparameters under a hash of everything the optimiser saw - the kernel with its bounds, the
 training inputs and targets, the per-run noise, the optimiser's restarts and seed, and
 scikit-learn's version - and a fit that finds its key refits with them held (one Cholesky
