@@ -162,7 +162,8 @@ class FitCache:
 
 def is_fit_file(path) -> bool:
     """A file this cache writes: ``<32 hex digits>.json``."""
-    return Path(path).is_file() and re.fullmatch(r"[0-9a-f]{32}\.json", Path(path).name) is not None
+    path = Path(path)
+    return path.is_file() and re.fullmatch(r"[0-9a-f]{32}\.json", path.name) is not None
 
 
 def replace_fits(new, dest=COMMITTED_FITS) -> int:
