@@ -180,18 +180,13 @@ def remake_demo_fits(workers=1, log=print) -> int:
     import tempfile
     from analysis import loop
     from analysis.fit_cache import FOLDER, replace_fits
-    from analysis.twin_runs import TwinRuns
     tmp = Path(tempfile.mkdtemp(prefix="demo-fits-"))
     try:
         for sub, ds, words, extra in DEMO_LOOPS:
             log("the loop on %s" % words)
-            args = loop.build_parser().parse_args(["--dataset", str(ds), "--out",
-                                                   str(tmp / "out" / sub), "--workers",
-                                                   str(workers), *extra])
-            d, settings, base, _ = loop.prepare(args)
-            twin = TwinRuns(runs_dir=tmp / "runs", budget_runs=0, workers=workers,
-                            base_config=base)
-            loop.run_loop(d, settings, twin=twin, base_config=base, log=log)
+            loop.run_committed(["--dataset", str(ds), "--out", str(tmp / "out" / sub),
+                                "--workers", str(workers), *extra], tmp / "runs", log=log,
+                               committed_fits=False)
         return replace_fits(tmp / "runs" / FOLDER)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

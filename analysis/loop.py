@@ -991,28 +991,45 @@ def interval_stage(state: LoopState):
 
 
 def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | None = None,
-             base_config=None, track_cache=None, progress=True, log=print) -> LoopResult:
+             base_config=None, track_cache=None, progress=True, log=print,
+             committed_fits=True) -> LoopResult:
     """Run the loop's stages on a loaded :class:`analysis.measurements.Dataset` (see the module
     doc). ``twin`` runs the design's runs (default: the YADE twin through the sweep, cached in
     results/runs, with the committed run table); ``base_config`` holds the run-config keys of
-    every twin run (the frame, the rig's apparatus, ``record_s``)."""
+    every twin run (the frame, the rig's apparatus, ``record_s``); ``committed_fits``: the
+    emulator also replays the committed fits (:data:`analysis.fit_cache.COMMITTED_FITS`)."""
     t0 = time.time()
     twin = twin if twin is not None else TwinRuns(base_config=base_config, progress=progress)
     state = run_stages(dataset, settings, twin=twin, base_config=base_config,
-                       track_cache=track_cache, progress=progress, log=log)
+                       track_cache=track_cache, progress=progress, log=log,
+                       committed_fits=committed_fits)
     return result_of(state, new_runs=twin.new_runs, wall_s=time.time() - t0,
                      failed=getattr(twin, "failed", None))
 
 
+def run_committed(argv, runs_dir, log=print, committed_fits=True):
+    """The loop of ``python -m analysis.loop`` options ``argv`` on the committed and cached runs
+    only, with ``runs_dir`` as its run cache (no new twin run: a missing one raises
+    :class:`analysis.twin_runs.BudgetError`); ``committed_fits`` as :func:`run_loop`'s.
+    Returns (LoopResult, the dataset)."""
+    args = build_parser().parse_args(argv)
+    ds, settings, base_config, _ = prepare(args)
+    twin = TwinRuns(runs_dir=runs_dir, budget_runs=0, workers=args.workers,
+                    base_config=base_config)
+    return run_loop(ds, settings, twin=twin, base_config=base_config, log=log,
+                    committed_fits=committed_fits), ds
+
+
 def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None,
-               track_cache=None, progress=True, log=print) -> LoopState:
+               track_cache=None, progress=True, log=print, committed_fits=True) -> LoopState:
     """The stages in order (read, build, calibrate, select, focus, confirm, intervals) on one
     state, returned: what :func:`run_loop` reports, and what a calibration
     (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
     from analysis.fit_cache import COMMITTED_FITS, FitCache
     s = (settings or LoopSettings()).check()
     runs_dir = getattr(twin, "runs_dir", None)
-    fits = None if runs_dir is None else FitCache.beside(runs_dir, also=[COMMITTED_FITS])
+    also = [COMMITTED_FITS] if committed_fits else []
+    fits = None if runs_dir is None else FitCache.beside(runs_dir, also=also)
     state = read_stage(dataset, s, base_config=base_config, track_cache=track_cache,
                        progress=progress, log=log, fit_cache=fits)
     build_stage(state, twin, log)

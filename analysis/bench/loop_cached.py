@@ -3,8 +3,9 @@ fits of an earlier pass (:mod:`analysis.fit_cache`).
 
 Default dataset: Table 3 (data/measurements/paper_table3, the demo's loop), whose runs are all in
 the committed run table (data/twin_runs/runs.csv). Both passes read them from there into a fresh
-temporary runs folder (budget 0: no twin run starts); the first finds no cached fit and optimises
-every emulator's hyperparameters, the second replays them. Prints and writes
+temporary runs folder (budget 0: no twin run starts); the first finds no cached fit (the
+committed fits are not read) and optimises every emulator's hyperparameters, the second replays
+them. Prints and writes
 ``results/bench/loop_cached.txt``: both wall times, their ratio, whether the two passes wrote the
 same tables (they must: a replayed fit is the same model), the machine's load before the start.
 
@@ -38,7 +39,7 @@ def main(argv=None):
                         "--option=--per-wave --option=6)")
     a = p.parse_args(argv)
     from analysis import loop
-    from analysis.twin_runs import BudgetError, TwinRuns
+    from analysis.twin_runs import BudgetError
     tmp = Path(tempfile.mkdtemp(prefix="bench-loop-cached-"))
     load = os.getloadavg()[0]
     lines, walls = [], []
@@ -46,14 +47,11 @@ def main(argv=None):
         for label in ("no cached fit", "fits cached"):
             out = tmp / label.replace(" ", "_")
             t0 = time.perf_counter()
-            args = loop.build_parser().parse_args(["--dataset", a.dataset, "--out", str(out),
-                                                   "--workers", "1", *a.option])
-            ds, settings, base_config, _ = loop.prepare(args)
-            twin = TwinRuns(runs_dir=tmp / "runs", budget_runs=0, workers=1,
-                            base_config=base_config)
             try:
-                res = loop.run_loop(ds, settings, twin=twin, base_config=base_config,
-                                    log=lambda s: print(s, file=sys.stderr))
+                res, ds = loop.run_committed(["--dataset", a.dataset, "--out", str(out),
+                                              "--workers", "1", *a.option], tmp / "runs",
+                                             log=lambda s: print(s, file=sys.stderr),
+                                             committed_fits=False)
             except BudgetError as exc:
                 print("analysis.bench.loop_cached: not every run of the loop is committed: %s"
                       % exc, file=sys.stderr)
