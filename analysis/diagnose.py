@@ -89,7 +89,7 @@ import numpy as np
 import pandas as pd
 
 from scipy import optimize, stats
-from scipy.linalg import solve_triangular
+from scipy.linalg import get_lapack_funcs, solve_triangular
 
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
                                    Dataset, measurement_table, yield_table)
@@ -354,6 +354,33 @@ def _cholesky(S):
         return np.linalg.cholesky((U * np.maximum(w, floor)) @ U.T)
 
 
+def _cholesky_each(mats) -> list:
+    """:func:`_cholesky` of each matrix of a list of equal shapes, in one LAPACK loop (NumPy
+    factors a stack matrix by matrix, as one by one); one by one where one is not positive."""
+    if not mats:
+        return []
+    try:
+        return list(np.linalg.cholesky(np.stack(mats)))
+    except np.linalg.LinAlgError:
+        return [_cholesky(S) for S in mats]
+
+
+_TRTRS = get_lapack_funcs(("trtrs",), (np.empty((1, 1)),))[0]
+
+
+def _solve_lower(L, b):
+    """L^-1 b for a lower-triangular float64 L: the LAPACK call scipy's solve_triangular makes
+    (trtrs; a C-ordered L as its transpose's upper system), without its checks - a fit asks
+    this hundreds of thousands of times."""
+    if L.flags.f_contiguous:
+        x, info = _TRTRS(L, b, lower=1, trans=0)
+    else:
+        x, info = _TRTRS(L.T, b, lower=0, trans=1)
+    if info != 0:
+        raise np.linalg.LinAlgError("triangular solve failed (LAPACK info %d)" % info)
+    return x
+
+
 @dataclass(frozen=True)
 class _ModeFit:
     """A motion-mode mixture scored against the data at one point: per observation the mean,
@@ -412,6 +439,7 @@ class Problem:
         # is their mixture, scored per condition in the mode the data make most probable
         self._modes_fn = getattr(self._se_fn, "modes", None)
         self._mix = {}
+        self._layout = None
         self._chols = {}
         if self._se_fn is not None:
             model_se = self._se_fn({p.name: p.value for p in self.base}, {})
@@ -513,43 +541,50 @@ class Problem:
         rows' sum of squares that condition's exact -2 log of the mixture density:
         -2 log p_k* - 2 log sum_k exp(a_k - a_k*) + 2 log K >= 0 (a_k the log of p_k N_k; the
         constant 2 log K, the same at every point, keeps the row real)."""
-        idx = pd.Index(mc.keys).get_indexer(self.keys)
-        if np.any(idx < 0):
-            raise ValueError("model_se.modes returned no value for %r"
-                             % (self.keys[int(np.argmin(idx))],))
+        idx, blocks = self._mode_layout(mc)
         mean, cov = mc.mean[:, idx], mc.cov[:, idx][:, :, idx]
-        cond = mc.condition[idx]
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
             raise ValueError("model_se.modes returned a non-finite value")
         K = len(mc.modes)
-        var = self.sd ** 2
-        pick = np.zeros(len(self.y), int)
+        n = len(self.y)
+        pick = np.zeros(n, int)
         rows = []
-        for g in np.unique(cond):
-            on = np.flatnonzero(cond == g)
+        for g, on, ix, dvar in blocks:
             a = np.full(K, -np.inf)
-            for k in range(K):
-                if mc.log_p[k, g] < LOG_P_NEGLIGIBLE:
-                    continue
-                S = cov[k][np.ix_(on, on)] + np.diag(var[on])
-                L = _cholesky(S)
-                w = solve_triangular(L, self.y[on] - mean[k, on], lower=True,
-                                     check_finite=False)
+            ks = [k for k in range(K) if not mc.log_p[k, g] < LOG_P_NEGLIGIBLE]
+            for k, L in zip(ks, _cholesky_each([cov[k][ix] + dvar for k in ks])):
+                w = _solve_lower(L, self.y[on] - mean[k, on])
                 a[k] = -0.5 * (w @ w) - np.sum(np.log(np.diag(L))) + mc.log_p[k, g]
             best = int(np.argmax(a))
             pick[on] = best
             rows.append(-2.0 * mc.log_p[best, g] - 2.0 * np.log(np.sum(np.exp(a - a[best])))
                         + 2.0 * np.log(K))
-        n = len(self.y)
-        S = np.zeros((n, n))
-        for k in range(K):
-            m = pick == k
-            S[np.ix_(m, m)] = cov[k][np.ix_(m, m)]
-        S[np.diag_indices_from(S)] += var
+        S = np.where(pick[:, None] == pick[None, :], cov[pick, np.arange(n)], 0.0)
+        S[np.diag_indices_from(S)] += self.sd ** 2
         L = _cholesky(S)
         return _ModeFit(mean=mean[pick, np.arange(n)], chol=L, sigma=np.sqrt(np.diag(S)),
                         mode=np.asarray(mc.modes, object)[pick],
                         rows=np.sqrt(np.maximum(np.array(rows), 0.0)))
+
+    def _mode_layout(self, mc):
+        """Where ``mc``'s keys sit among the observations and, per condition, its rows with
+        their index block and diag(sd^2): worked out once per keys and conditions object (a
+        model hands the same ones at every point)."""
+        seen = self._layout
+        if seen is not None and seen[0] is mc.keys and seen[1] is mc.condition:
+            return seen[2], seen[3]
+        idx = pd.Index(mc.keys).get_indexer(self.keys)
+        if np.any(idx < 0):
+            raise ValueError("model_se.modes returned no value for %r"
+                             % (self.keys[int(np.argmin(idx))],))
+        cond = mc.condition[idx]
+        var = self.sd ** 2
+        blocks = []
+        for g in np.unique(cond):
+            on = np.flatnonzero(cond == g)
+            blocks.append((g, on, np.ix_(on, on), np.diag(var[on])))
+        self._layout = (mc.keys, mc.condition, idx, blocks)
+        return idx, blocks
 
     def profiled_start(self, theta, name, strength):
         """Base parameters refitted with effect ``name`` held at ``strength``: a starting point

@@ -548,3 +548,58 @@ def test_an_emulators_correlated_error_is_scored_with_its_covariance():
             assert fit.penalty == pytest.approx(np.linalg.slogdet(S)[1]
                                                 - 2 * len(x) * np.log(sd), rel=1e-6)
     assert hits >= 0.825 * n, hits
+
+
+def test_the_mode_mixture_likelihood_is_the_mixture_density():
+    """Known truth: three motion modes with their own means and (per condition) covariances,
+    conditions of 3, 1 and 4 observations, a mode negligible at one condition. What a fit
+    minimises at a point - |chol^-1 (y - mean)|^2 + log det + the rows that complete each
+    condition - is the exact -2 log of the mixture density sum_k p_k N(y_g; m_k, C_k + D)
+    summed over the conditions (scipy's multivariate normal), less n log 2 pi, plus 2 G log K.
+    And each condition is scored in its most probable mode."""
+    from scipy import stats
+    from analysis.emulator import ModeComponents
+    rng = np.random.default_rng(11)
+    sizes, K = (3, 1, 4), 3
+    cond = np.repeat(np.arange(len(sizes)), sizes)
+    n = len(cond)
+    keys = pd.MultiIndex.from_tuples([("c%d" % g, "o%d" % i) for g, i in
+                                      zip(cond, np.concatenate([np.arange(s) for s in sizes]))],
+                                     names=["condition_id", "observable"])
+    mean = rng.normal(0.0, 1.0, (K, n))
+    cov = np.zeros((K, n, n))
+    for k in range(K):
+        for g in range(len(sizes)):
+            on = np.flatnonzero(cond == g)
+            A = rng.normal(0.0, 0.5, (len(on), len(on)))
+            cov[k][np.ix_(on, on)] = A @ A.T
+    p = rng.dirichlet(np.ones(K), len(sizes)).T
+    p[2, 1], p[:2, 1] = 1e-12, (1 - 1e-12) * p[:2, 1] / p[:2, 1].sum()
+    sd = rng.uniform(0.2, 0.5, n)
+    y = mean[1] + rng.normal(0.0, 0.6, n)
+    comps = ModeComponents(modes=("a", "b", "c"), keys=keys, mean=mean, cov=cov,
+                           log_p=np.log(p), condition=cond)
+
+    def se(theta, effects=None):
+        return pd.Series(0.1, index=keys)
+    se.modes = lambda theta, effects=None: comps
+    obs = pd.DataFrame({"condition_id": keys.get_level_values(0),
+                        "observable": keys.get_level_values(1), "value": y, "sd": sd})
+    prob = Problem(lambda theta, effects=None: pd.Series(mean[0], index=keys), obs,
+                   [BaseParameter("a", 0.5, 0.0, 1.0)], [], se, None, 1e-3, None)
+    fit = prob._mixture({"a": 0.5}, {})
+    order = prob.keys.get_indexer(keys)
+    assert (order == np.arange(n)).all()
+    w = np.linalg.solve(fit.chol, y - fit.mean)
+    got = w @ w + 2 * np.sum(np.log(np.diag(fit.chol))) + np.sum(fit.rows ** 2)
+    want, best = 0.0, []
+    for g in range(len(sizes)):
+        on = np.flatnonzero(cond == g)
+        logs = [np.log(p[k, g]) + stats.multivariate_normal(
+            mean[k, on], cov[k][np.ix_(on, on)] + np.diag(sd[on] ** 2)).logpdf(y[on])
+            for k in range(K)]
+        want += -2 * np.logaddexp.reduce(logs)
+        best.append("abc"[int(np.argmax(logs))])
+    want += -n * np.log(2 * np.pi) + 2 * len(sizes) * np.log(K)
+    assert got == pytest.approx(want, rel=1e-9)
+    assert [fit.mode[cond == g][0] for g in range(len(sizes))] == best

@@ -518,3 +518,20 @@ def test_committed_fits_are_replaced_whole_and_only_when_all_are_fits(tmp_path):
         replace_fits(new, dest)
     assert sorted(p.name for p in dest.iterdir()) == ["a" * 32 + ".json", "mine.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dest", "new"]
+
+
+def test_mode_probabilities_are_scikit_learns_to_the_last_digit():
+    """The classifier's own Laplace prediction (one triangular solve) gives scikit-learn's
+    predict_proba bit for bit, with 2 modes (one binary classifier) and 3 (one-vs-rest,
+    normalised)."""
+    from analysis.emulator import ModeClassifier
+    X, _ = design(np.random.default_rng(3), n_points=14, replicates=2)
+    Xt = np.random.default_rng(5).uniform([0.1, 0, 20], [0.7, 1, 32], (40, 3))
+    for labels in (np.where(X[:, 0] > 0.4, "a", "b"),
+                   np.where(X[:, 0] > 0.5, "a", np.where(X[:, 2] > 25, "b", "c"))):
+        mc = ModeClassifier(BOUNDS, random_state=1).fit(X, labels)
+        ref = mc.gpc_.predict_proba(mc._scale(Xt))
+        ref = ref[:, [list(mc.gpc_.classes_).index(k) for k in mc.modes_]]
+        got = mc.predict_proba(Xt)
+        assert np.array_equal(got, ref)
+        assert np.allclose(got.sum(axis=1), 1.0) and 0.0 < got.min() and got.max() < 1.0
