@@ -603,3 +603,28 @@ def test_the_mode_mixture_likelihood_is_the_mixture_density():
     want += -n * np.log(2 * np.pi) + 2 * len(sizes) * np.log(K)
     assert got == pytest.approx(want, rel=1e-9)
     assert [fit.mode[cond == g][0] for g in range(len(sizes))] == best
+
+
+def test_a_profile_interval_holds_the_values_beyond_a_bump_of_the_response():
+    """Known truth behind a bump: the model's response wiggles in s (the shape an emulator's
+    error takes between its runs: zero at s = 0, 0.25, ..., 1, a bump between), the data are
+    made at s = 0.75, and the fit lands in another well. The profile allows every well
+    alike; the 95 % interval is the hull of what it allows - the truth inside - not the fit's
+    well alone (the first edges either side of the fit, which missed it)."""
+    from analysis.diagnose import BaseParameter, calibrate_base, profile_interval
+    x = np.linspace(0.0, 1.0, 12)
+    keys = pd.MultiIndex.from_arrays([["c%d" % i for i in range(12)], ["y"] * 12])
+
+    def predict(theta, effects=None):
+        wiggle = 0.03 * np.sin(np.pi * theta["s"] / 0.25) ** 2
+        return pd.Series(theta["a"] * x + wiggle * np.cos(6 * x), index=keys)
+    rng = np.random.default_rng(2)
+    obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
+                        "value": predict({"a": 1.0, "s": 0.75}).to_numpy()
+                        + 0.01 * rng.standard_normal(12), "sd": 0.01})
+    base = [BaseParameter("a", 0.8, 0.2, 3.0), BaseParameter("s", 0.3, 0.0, 1.0)]
+    _, fit = calibrate_base(predict, obs, base)
+    assert abs(fit.params["s"] - 0.75) > 0.15, fit.params
+    iv = profile_interval(predict, obs, base, "s", fit)
+    assert iv.lower <= 0.75 <= iv.upper, (fit.params["s"], iv.lower, iv.upper)
+    assert iv.upper - iv.lower >= 0.5
