@@ -26,7 +26,10 @@ move together across conditions) is scored with the full covariance ``diag(sd**2
 residuals whitened by its Cholesky factor, -2 log L = chi2 + log det (Kennedy & O'Hagan 2001).
 :func:`dataset_observations` builds that table from a dataset, with the impact observables of
 its jar tracks (:mod:`analysis.flights`); :func:`with_run_sd` floors their sd at one twin run's
-scatter.
+scatter. An optional column ``shared_sd`` states the part of a row's sd that every row of its
+condition with a shared_sd shares (one film's length scale: its lengths and speeds read off by
+one factor together): the data's covariance is then diag(sd**2) plus shared_sd_i shared_sd_j
+between two rows of one condition, and every fit is scored in that metric.
 
 The method
 ----------
@@ -303,17 +306,43 @@ def dataset_observations(dataset: Dataset, flights=True):
     return obs, fl_ids, fl
 
 
+def shared_covariance(obs: pd.DataFrame) -> np.ndarray | None:
+    """The off-diagonal covariance the observations' ``shared_sd`` states: shared_sd_i
+    shared_sd_j between two rows of one condition, 0 elsewhere and on the diagonal; None
+    without the column or without a shared error."""
+    if "shared_sd" not in obs.columns:
+        return None
+    s = np.nan_to_num(obs["shared_sd"].to_numpy(float), nan=0.0)
+    sd = obs["sd"].to_numpy(float)
+    if not np.all(np.isfinite(s)) or np.any(s < 0) or np.any(s > sd * (1 + 1e-9)):
+        i = int(np.argmax(~np.isfinite(s) | (s < 0) | (s > sd * (1 + 1e-9))))
+        raise ValueError("observations: shared_sd must be finite and between 0 and sd, "
+                         "not %r at (%r, %r)" % (float(s[i]), obs["condition_id"].iloc[i],
+                                                 obs["observable"].iloc[i]))
+    if not np.any(s > 0):
+        return None
+    cond = obs["condition_id"].to_numpy()
+    C = np.where(cond[:, None] == cond[None, :], np.outer(s, s), 0.0)
+    C[np.diag_indices_from(C)] = 0.0
+    return C
+
+
 def with_run_sd(obs: pd.DataFrame, run_sd: pd.Series) -> pd.DataFrame:
-    """``obs`` whose sd is at least one twin run's scatter (``run_sd``, a Series by
-    (condition_id, observable)) where it names one: a track is one realisation of a chaotic
-    motion. The operator's standard error over the record and the scatter of one run's record
-    mean both measure that realisation's chaos - the larger is kept (adding them in quadrature
-    counted it twice: on 11 no-effect datasets the impact observables' mean z^2 was 0.23-0.45
-    for e_app and the impact phase)."""
+    """``obs`` whose own error (sd less the ``shared_sd`` a film's rows share) is at least one
+    twin run's scatter (``run_sd``, a Series by (condition_id, observable)) where it names one:
+    a track is one realisation of a chaotic motion. The operator's standard error over the
+    record and the scatter of one run's record mean both measure that realisation's chaos -
+    the larger is kept (adding them in quadrature counted it twice: on 11 no-effect datasets
+    the impact observables' mean z^2 was 0.23-0.45 for e_app and the impact phase); the film's
+    scale error is another error and stays in quadrature."""
     key = list(zip(obs["condition_id"], obs["observable"]))
     add = np.array([run_sd.get(k, 0.0) for k in key])
+    sd = obs["sd"].to_numpy(float)
+    shared = (np.nan_to_num(obs["shared_sd"].to_numpy(float), nan=0.0)
+              if "shared_sd" in obs.columns else np.zeros_like(sd))
+    own = np.sqrt(np.maximum(sd ** 2 - shared ** 2, 0.0))
     out = obs.copy()
-    out["sd"] = np.fmax(out["sd"].to_numpy(float), add)
+    out["sd"] = np.hypot(np.fmax(own, add), shared)
     return out
 
 
@@ -413,6 +442,7 @@ class Problem:
         sd = obs["sd"].to_numpy(float)
         if not np.all(np.isfinite(self.y)) or not np.all(np.isfinite(sd)) or np.any(sd < 0):
             raise ValueError("observations: value and sd must be finite, sd >= 0")
+        self._shared = shared_covariance(obs)
         self.predict = predict
         self._prefetch = prefetcher(predict)
         self.base = list(base_params)
@@ -561,6 +591,8 @@ class Problem:
                         + 2.0 * np.log(K))
         S = np.where(pick[:, None] == pick[None, :], cov[pick, np.arange(n)], 0.0)
         S[np.diag_indices_from(S)] += self.sd ** 2
+        if self._shared is not None:
+            S += self._shared
         L = _cholesky(S)
         return _ModeFit(mean=mean[pick, np.arange(n)], chol=L, sigma=np.sqrt(np.diag(S)),
                         mode=np.asarray(mc.modes, object)[pick],
@@ -578,11 +610,12 @@ class Problem:
             raise ValueError("model_se.modes returned no value for %r"
                              % (self.keys[int(np.argmin(idx))],))
         cond = mc.condition[idx]
-        var = self.sd ** 2
+        D = self.data_cov()
         blocks = []
         for g in np.unique(cond):
             on = np.flatnonzero(cond == g)
-            blocks.append((g, on, np.ix_(on, on), np.diag(var[on])))
+            ix = np.ix_(on, on)
+            blocks.append((g, on, ix, D[ix]))
         self._layout = (mc.keys, mc.condition, idx, blocks)
         return idx, blocks
 
@@ -625,33 +658,47 @@ class Problem:
             return np.zeros(0)
         return self._mixture(theta, effects or {}).rows
 
+    def data_cov(self) -> np.ndarray:
+        """The data's covariance: diag(sd^2), and shared_sd_i shared_sd_j between two rows
+        of one condition (the observations' ``shared_sd``)."""
+        D = np.diag(self.sd ** 2)
+        return D if self._shared is None else D + self._shared
+
     def chol(self, effects, theta=None):
-        """The lower Cholesky factor of the covariance diag(sd^2) + K at these
-        strengths and base parameters, K the model's own covariance (its ``.cov``); None when
-        the model states none (the covariance is diag(sigma^2))."""
+        """The lower Cholesky factor of the covariance D + K at these strengths and base
+        parameters, D the data's (:meth:`data_cov`), K the model's own (its ``.cov``; else
+        its sd^2 on the diagonal); None when neither correlates two observations (the
+        covariance is diag(sigma^2))."""
         if self._modes_fn is not None and theta is not None:
             return self._mixture(theta, effects or {}).chol
-        if self._cov_fn is None or theta is None:
+        model_cov = self._cov_fn is not None and theta is not None
+        if not model_cov and self._shared is None:
             return None
         eff = dict(self.fixed)
         eff.update(effects or {})
-        key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
+        key = (tuple(sorted((theta or {}).items())), tuple(sorted(eff.items())))
         if key not in self._chols:
             if len(self._chols) >= 4096:
                 self._chols.clear()
-            K, index = self._cov_fn(dict(theta), eff)
-            idx = (self._indexer if index is self._index_seen
-                   else pd.Index(index).get_indexer(self.keys))
-            if np.any(idx < 0):
-                raise ValueError("model_se.cov returned no value for %r"
-                                 % (self.keys[int(np.argmin(idx))],))
-            S = np.asarray(K, float)[np.ix_(idx, idx)]
-            if not np.all(np.isfinite(S)):
-                raise ValueError("model_se.cov returned a non-finite value")
-            sig = self.sigma_for(effects, theta)
-            S[np.diag_indices_from(S)] = sig ** 2
+            S = self._model_cov(theta, eff) if model_cov else np.zeros((self.n, self.n))
+            S[np.diag_indices_from(S)] = self.sigma_for(effects, theta) ** 2
+            if self._shared is not None:
+                S += self._shared
             self._chols[key] = _cholesky(S)
         return self._chols[key]
+
+    def _model_cov(self, theta, eff) -> np.ndarray:
+        """The model's own covariance (its ``.cov``) at a point, in the observations' order."""
+        K, index = self._cov_fn(dict(theta), eff)
+        idx = (self._indexer if index is self._index_seen
+               else pd.Index(index).get_indexer(self.keys))
+        if np.any(idx < 0):
+            raise ValueError("model_se.cov returned no value for %r"
+                             % (self.keys[int(np.argmin(idx))],))
+        S = np.asarray(K, float)[np.ix_(idx, idx)]
+        if not np.all(np.isfinite(S)):
+            raise ValueError("model_se.cov returned a non-finite value")
+        return S
 
     def white(self, v, effects, theta=None):
         """measured-minus-model vectors (or the columns of an array) whitened at these

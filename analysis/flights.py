@@ -311,10 +311,16 @@ def flight_observables_frame(track: pd.DataFrame, frequency_hz, **kwargs) -> Fli
                               frequency_hz, **kwargs)
 
 
-#: sd floors of the measured side: (absolute, relative). Lengths carry the camera's scale
-#: uncertainty (0.5 %: the scale from the ball's imaged diameter, see results/observe).
-SD_FLOORS = {"e_app": (0.005, 0.0), "v_in_m_s": (0.0, 0.005), "impact_phase_rad": (0.02, 0.0),
-             "jar_amplitude_m": (0.0, 0.005), "vy_rms_m_s": (0.001, 0.005)}
+#: sd floors of the measured side, in each observable's unit (the operator's se over a record
+#: can come out smaller than what the measurement chain allows)
+SD_FLOORS = {"e_app": 0.005, "impact_phase_rad": 0.02, "vy_rms_m_s": 0.001}
+
+#: relative sd of one film's length scale (the scale from the ball's imaged diameter, see
+#: results/observe): every length and speed read off one film is off by the same factor
+FILM_SCALE_REL_SD = 0.005
+
+#: the impact observables that are lengths or speeds: they carry their film's scale together
+SCALED_OBSERVABLES = ("v_in_m_s", "jar_amplitude_m", "vy_rms_m_s")
 
 
 def has_jar_track(track: pd.DataFrame) -> bool:
@@ -325,8 +331,11 @@ def has_jar_track(track: pd.DataFrame) -> bool:
 def dataset_flights(dataset, **kwargs) -> pd.DataFrame:
     """Impact observables of every track of a measurement dataset that carries jar_x_m.
 
-    Returns the observations table (condition_id, observable, value, sd) diagnose reads; sd is
-    the operator's standard error over the record, floored by :data:`SD_FLOORS`. Tracks in the
+    Returns the observations table (condition_id, observable, value, sd, shared_sd) diagnose
+    reads: shared_sd the film's scale error (:data:`FILM_SCALE_REL_SD` of the value) that a
+    track's lengths and speeds (:data:`SCALED_OBSERVABLES`) share, 0 for the others; sd that
+    and the operator's standard error over the record (floored by :data:`SD_FLOORS`) in
+    quadrature. Tracks in the
     jar frame (dataset velocity_frame 'jar') are moved to the lab frame first (x + jar_x).
     Conditions without a jar track give no rows; a track the operator cannot read is an error
     naming its file.
@@ -343,10 +352,10 @@ def dataset_flights(dataset, **kwargs) -> pd.DataFrame:
                                  float(conds.loc[cid, "frequency_hz"]),
                                  source="%s: tracks/%s.csv" % (dataset.name, cid), **kwargs)
         for k in FLIGHT_OBSERVABLES:
-            a, r = SD_FLOORS[k]
-            sd = max(res.se[k], a, r * abs(res.values[k]))
-            rows.append((cid, k, res.values[k], sd))
-    return pd.DataFrame(rows, columns=["condition_id", "observable", "value", "sd"])
+            own = max(res.se[k], SD_FLOORS.get(k, 0.0))
+            shared = FILM_SCALE_REL_SD * abs(res.values[k]) if k in SCALED_OBSERVABLES else 0.0
+            rows.append((cid, k, res.values[k], math.hypot(own, shared), shared))
+    return pd.DataFrame(rows, columns=["condition_id", "observable", "value", "sd", "shared_sd"])
 
 
 def recording_flights(recording, fps=None, **kwargs) -> FlightResult:

@@ -106,7 +106,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         tracker's 0.01-0.04 px at ~0.1 mm/px, results/observe)
     track_scale_sd : relative sd of each film's length scale (a camera calibrated on a
         reference length is off by a fixed factor for the whole film); default the relative
-        sd floor the impact observables' lengths carry (analysis.flights.SD_FLOORS, 0.5 %)
+        scale sd the impact observables' lengths carry (analysis.flights.FILM_SCALE_REL_SD, 0.5 %)
 
     The twin runs only the DEM effects (kinetics effects act on the yields). The reported sd of
     v_mean and f_col is the measurement noise combined with the twin's own replicate scatter of
@@ -203,8 +203,8 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         if tracks == "auto" and not have:
             tracks = False
         if track_scale_sd is None:
-            from analysis.flights import SD_FLOORS
-            track_scale_sd = SD_FLOORS["v_in_m_s"][1]
+            from analysis.flights import FILM_SCALE_REL_SD
+            track_scale_sd = FILM_SCALE_REL_SD
         # its own stream: the scale draws leave the other noise of a seed as it was
         rng_scale = np.random.default_rng([int(seed), 7])
         for cid, g in (t.groupby("condition_id", sort=False) if tracks else ()):

@@ -87,13 +87,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy import linalg, stats
 
 from analysis.atomic_dir import OutputError, check_out_dir, output_dir
 from analysis.conditions import ConditionError, label, physics_table
 from analysis.catalog import CANDIDATES, candidates
 from analysis.diagnose import (BaseParameter, calibrate_base, dataset_observations, diagnose,
-                               with_run_sd)
+                               shared_covariance, with_run_sd)
 from analysis.measurements import DatasetError, conditions_file, load_dataset, yield_times_of
 from analysis.parameter_space import (ParameterVector, coordinates_of,
                                      reference_parameters)
@@ -366,14 +366,23 @@ def lean_of(fit, obs, alpha) -> Lean:
 
 def rerun_score(obs, pred, se, final, n_params) -> RerunScore:
     """chi2 of the data against a twin rerun's means (the priors' pseudo-observations at the
-    fit's values), sigma = hypot(measured sd, the rerun mean's se)."""
+    fit's values), sigma = hypot(measured sd, the rerun mean's se) per key (z), and the data's
+    shared errors (a film's scale: ``shared_sd``) correlating the keys they share in chi2."""
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
     p = pred.reindex(key).to_numpy(float)
     p = np.where(np.isfinite(p), p, final.prediction.reindex(key).to_numpy(float))
     s = np.hypot(obs["sd"].to_numpy(float), se.reindex(key).fillna(0.0).to_numpy(float))
-    z = (p - obs["value"].to_numpy(float)) / s
+    r = p - obs["value"].to_numpy(float)
+    z = r / s
+    ok = np.isfinite(z)
+    shared = shared_covariance(obs.reset_index(drop=True))
+    if shared is None:
+        chi2 = float(np.sum(z[ok] ** 2))
+    else:
+        S = (np.diag(s ** 2) + shared)[np.ix_(ok, ok)]
+        chi2 = float(r[ok] @ linalg.cho_solve(linalg.cho_factor(S, lower=True), r[ok]))
     return RerunScore(prediction=pd.Series(p, index=key), z=pd.Series(z, index=key),
-                      chi2=float(np.nansum(z ** 2)), dof=int(np.isfinite(z).sum()) - n_params)
+                      chi2=chi2, dof=int(ok.sum()) - n_params)
 
 
 def joint_fit(model, obs, theta, added):
