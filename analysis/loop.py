@@ -1060,7 +1060,7 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     steps = pd.concat(fs.steps, ignore_index=True) if fs.steps else pd.DataFrame()
     diagnosis = _diagnosis_table(steps, state.added, eff_se)
     parameters = parameter_table(state, eff_se)
-    comp = state.obs.copy()
+    comp = state.obs[["condition_id", "observable", "value", "sd"]].copy()
     key = pd.MultiIndex.from_frame(comp[["condition_id", "observable"]])
     comp["calibrated"] = cal.prediction.reindex(key).to_numpy(float)
     comp["z_calibrated"] = cal.residuals.reindex(key).to_numpy(float)

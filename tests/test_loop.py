@@ -194,6 +194,9 @@ def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
     c = pd.read_csv(out / "comparison.csv")
     e = c[c["observable"] == "e_app"]
     assert len(e) == 6 and np.isfinite(e["calibrated"]).all()
+    # the documented columns (docs/loop.md), in order: no internal column of the observations
+    assert list(c.columns) == ["condition_id", "observable", "value", "sd", "calibrated",
+                               "z_calibrated", "final", "z_final", "motion_mode_final"]
 
 
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
