@@ -306,13 +306,18 @@ def dataset_observations(dataset: Dataset, flights=True):
     return obs, fl_ids, fl
 
 
+def shared_sd_of(obs: pd.DataFrame) -> np.ndarray:
+    """The observations' ``shared_sd`` per row, 0 where empty or without the column."""
+    if "shared_sd" not in obs.columns:
+        return np.zeros(len(obs))
+    return np.nan_to_num(obs["shared_sd"].to_numpy(float), nan=0.0)
+
+
 def shared_covariance(obs: pd.DataFrame) -> np.ndarray | None:
     """The off-diagonal covariance the observations' ``shared_sd`` states: shared_sd_i
     shared_sd_j between two rows of one condition, 0 elsewhere and on the diagonal; None
-    without the column or without a shared error."""
-    if "shared_sd" not in obs.columns:
-        return None
-    s = np.nan_to_num(obs["shared_sd"].to_numpy(float), nan=0.0)
+    without a shared error."""
+    s = shared_sd_of(obs)
     sd = obs["sd"].to_numpy(float)
     if not np.all(np.isfinite(s)) or np.any(s < 0) or np.any(s > sd * (1 + 1e-9)):
         i = int(np.argmax(~np.isfinite(s) | (s < 0) | (s > sd * (1 + 1e-9))))
@@ -338,8 +343,7 @@ def with_run_sd(obs: pd.DataFrame, run_sd: pd.Series) -> pd.DataFrame:
     key = list(zip(obs["condition_id"], obs["observable"]))
     add = np.array([run_sd.get(k, 0.0) for k in key])
     sd = obs["sd"].to_numpy(float)
-    shared = (np.nan_to_num(obs["shared_sd"].to_numpy(float), nan=0.0)
-              if "shared_sd" in obs.columns else np.zeros_like(sd))
+    shared = shared_sd_of(obs)
     own = np.sqrt(np.maximum(sd ** 2 - shared ** 2, 0.0))
     out = obs.copy()
     out["sd"] = np.hypot(np.fmax(own, add), shared)
