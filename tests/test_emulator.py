@@ -535,3 +535,24 @@ def test_mode_probabilities_are_scikit_learns_to_the_last_digit():
         got = mc.predict_proba(Xt)
         assert np.array_equal(got, ref)
         assert np.allclose(got.sum(axis=1), 1.0) and 0.0 < got.min() and got.max() < 1.0
+
+
+@pytest.mark.parametrize("trend", [True, False])
+@pytest.mark.parametrize("nu", [0.5, 1.5, 2.5, np.inf, 2.0])
+def test_smooth_kernel_is_scikit_learns_to_the_last_digit(trend, nu):
+    """The emulator's own evaluation of each GP's smooth kernel (cross, gram, diagonal) gives
+    kernel_.k1's values bit for bit: with and without the linear part, for every nu with a
+    closed form and for one without (then scikit-learn's object does it)."""
+    from analysis.emulator import SmoothKernel
+    rng = np.random.default_rng(7)
+    b = {"a": (0.0, 1.0), "b": (0.0, 2.0), "c": (-1.0, 1.0), "d": (0.0, 1.0)}
+    X = rng.uniform(size=(50, 4)) * [1.0, 2.0, 2.0, 1.0] + [0.0, 0.0, -1.0, 0.0]
+    y = np.sin(3 * X[:, 0]) + X[:, 1] ** 2 - X[:, 2] + 0.01 * rng.standard_normal(50)
+    em = GPEmulator(b, outputs=("y",), nu=nu, trend=trend, random_state=0,
+                    n_restarts_optimizer=0).fit(X, y)
+    gp, sk = em.gps_[0], em.smooth_[0]
+    assert isinstance(sk, SmoothKernel) and sk._fast == (nu != 2.0)
+    Q = em._scale(rng.uniform(size=(42, 4)) * [1.0, 2.0, 2.0, 1.0] + [0.0, 0.0, -1.0, 0.0])
+    assert np.array_equal(sk.cross(Q), gp.kernel_.k1(Q, gp.X_train_))
+    assert np.array_equal(sk.gram(Q), gp.kernel_.k1(Q))
+    assert np.array_equal(sk.diag(Q), gp.kernel_.k1.diag(Q))
