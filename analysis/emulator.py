@@ -560,6 +560,7 @@ class ModeClassifier(_UnitCube):
                     est.set_params(kernel=k).fit(Xs, (labels == mode).astype(int))
         if cache and not known:
             cache.put(key, [hyperparameters(est.kernel_) for est in binaries])
+        self.smooth_ = [SmoothKernel(est.kernel_, est.X_train_) for est in binaries]
         return self
 
     def _binaries(self) -> list:
@@ -572,20 +573,21 @@ class ModeClassifier(_UnitCube):
         Xs = self._scale(X)
         if self.gpc_ is None:
             return np.ones((len(Xs), 1))
-        ests = self._binaries()
+        ests = list(zip(self._binaries(), self.smooth_))
         if len(ests) == 1:
-            pi = _laplace_proba(ests[0], Xs)
+            pi = _laplace_proba(*ests[0], Xs)
             p = np.vstack((1 - pi, pi)).T
         else:                               # one-vs-rest, normalised as scikit-learn does
-            p = np.array([_laplace_proba(e, Xs) for e in ests]).T
+            p = np.array([_laplace_proba(e, k, Xs) for e, k in ests]).T
             sums = np.sum(p, axis=1)[:, np.newaxis]
             np.divide(p, sums, out=p, where=sums != 0)
         order = [list(self.gpc_.classes_).index(k) for k in self.modes_]
         return p[:, order]
 
 
-def _laplace_proba(est, X) -> np.ndarray:
-    """p(class 1) of one fitted binary Laplace GP classifier of scikit-learn at X: its
+def _laplace_proba(est, kernel, X) -> np.ndarray:
+    """p(class 1) of one fitted binary Laplace GP classifier of scikit-learn (``kernel``: its
+    fitted kernel, a :class:`SmoothKernel`) at X: its
     ``predict_proba`` (Algorithm 3.2 of Rasmussen and Williams, the logistic's integral by
     its five error functions) to the last digit, with the triangular solve made as one:
     scikit-learn's general ``solve`` detects the structure and estimates the condition on
@@ -593,11 +595,11 @@ def _laplace_proba(est, X) -> np.ndarray:
     one, since the einsum's sums follow the order."""
     from scipy.special import erf
     from sklearn.gaussian_process._gpc import COEFS, LAMBDAS
-    K_star = est.kernel_(est.X_train_, X)
+    K_star = kernel.cross(X, train_first=True)
     f_star = K_star.T.dot(est.y_train_ - est.pi_)
     v = np.ascontiguousarray(solve_triangular(est.L_, est.W_sr_[:, np.newaxis] * K_star,
                                               lower=True, check_finite=False))   # solve's order
-    var = est.kernel_.diag(X) - np.einsum("ij,ij->j", v, v)
+    var = kernel.diag(X) - np.einsum("ij,ij->j", v, v)
     alpha = 1 / (2 * var)
     gamma = LAMBDAS * f_star
     integrals = (np.sqrt(np.pi / alpha) * erf(gamma * np.sqrt(alpha / (alpha + LAMBDAS ** 2)))
@@ -632,12 +634,14 @@ class SmoothKernel:
         c, s0sq = self.lin
         return K + np.full(K.shape, c) * (np.inner(X, Y) + s0sq)
 
-    def cross(self, X) -> np.ndarray:
-        """k(X, X_train), shape (len(X), n_train)."""
+    def cross(self, X, train_first=False) -> np.ndarray:
+        """k(X, X_train), shape (len(X), n_train); k(X_train, X) with ``train_first``."""
+        A, B = (self.X_train, X) if train_first else (X, self.X_train)
         if not self._fast:
-            return self.kernel(X, self.X_train)
-        d = cdist(X / self.ls, self.Y, metric="euclidean")
-        return self._sum(np.full(d.shape, self.c) * _MATERN[self.nu](d), X, self.X_train)
+            return self.kernel(A, B)
+        Xl = X / self.ls
+        d = cdist(*((self.Y, Xl) if train_first else (Xl, self.Y)), metric="euclidean")
+        return self._sum(np.full(d.shape, self.c) * _MATERN[self.nu](d), A, B)
 
     def gram(self, X) -> np.ndarray:
         """k(X, X), shape (len(X), len(X))."""

@@ -540,8 +540,8 @@ def test_mode_probabilities_are_scikit_learns_to_the_last_digit():
 @pytest.mark.parametrize("trend", [True, False])
 @pytest.mark.parametrize("nu", [0.5, 1.5, 2.5, np.inf, 2.0])
 def test_smooth_kernel_is_scikit_learns_to_the_last_digit(trend, nu):
-    """The emulator's own evaluation of each GP's smooth kernel (cross, gram, diagonal) gives
-    kernel_.k1's values bit for bit: with and without the linear part, for every nu with a
+    """The emulator's own evaluation of each GP's smooth kernel (cross both ways, gram,
+    diagonal) gives kernel_.k1's values bit for bit: with and without the linear part, for every nu with a
     closed form and for one without (then scikit-learn's object does it)."""
     from analysis.emulator import SmoothKernel
     rng = np.random.default_rng(7)
@@ -554,5 +554,6 @@ def test_smooth_kernel_is_scikit_learns_to_the_last_digit(trend, nu):
     assert isinstance(sk, SmoothKernel) and sk._fast == (nu != 2.0)
     Q = em._scale(rng.uniform(size=(42, 4)) * [1.0, 2.0, 2.0, 1.0] + [0.0, 0.0, -1.0, 0.0])
     assert np.array_equal(sk.cross(Q), gp.kernel_.k1(Q, gp.X_train_))
+    assert np.array_equal(sk.cross(Q, train_first=True), gp.kernel_.k1(gp.X_train_, Q))
     assert np.array_equal(sk.gram(Q), gp.kernel_.k1(Q))
     assert np.array_equal(sk.diag(Q), gp.kernel_.k1.diag(Q))
