@@ -139,17 +139,6 @@ def effect_strengths() -> dict:
             for c in CANDIDATES + OPTIONAL_CANDIDATES}
 
 
-def describe() -> str:
-    """A table of the movable parameters (name, role, unit, prior, physical bounds, base)."""
-    rows = ["%-22s %-9s %-6s %-22s %-22s %s" % ("name", "role", "unit", "prior", "physical",
-                                                "base")]
-    for p in SPACE.values():
-        rows.append("%-22s %-9s %-6s %-22s %-22s %s" % (
-            p.name, p.role, p.unit, "%.4g-%.4g" % p.prior, "%.4g-%.4g" % p.physical,
-            "yes" if p.base else "-"))
-    return "\n".join(rows)
-
-
 # ------------------------------------------------------------------ points of the space
 
 #: the powder line's coefficients a loop with yields fits beside the base parameters:

@@ -393,7 +393,6 @@ class GPSurrogate(RegressorMixin, BaseEstimator):
             with warnings.catch_warnings(), threadpool_limits(1):
                 warnings.simplefilter("ignore", ConvergenceWarning)
                 self.gps_.append(gp.fit(Z, Y2[:, j]))
-        self.n_outputs_ = Y2.shape[1]
         self._1d = Y.ndim == 1
         return self
 

@@ -480,7 +480,6 @@ def render_frames(positions, jar_x_m, cam: Camera, ball_diameter_m: float,
     C = cam.ball_level - cam.background
     for t in np.asarray(t_s, float):
         # sub-exposure sample times: enough that the ball moves <= 0.25 px between them
-        x_c, y_c = positions(np.array([t]))
         v_est = 3.0  # m/s, an upper bound used only to pick the sub-sample count
         blur_px = v_est * cam.exposure_s / cam.m_per_px
         n_sub = max(1, int(math.ceil(blur_px / 0.25)))
