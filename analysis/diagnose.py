@@ -92,8 +92,8 @@ import numpy as np
 import pandas as pd
 
 from scipy import optimize, stats
-from scipy.linalg import get_lapack_funcs, solve_triangular
 
+from analysis.linalg import solve_lower
 from analysis.measurements import (DEFAULT_F_COL_SD_HZ, DEFAULT_V_REL_SD, DEFAULT_YIELD_SD_PCT,
                                    Dataset, measurement_table, yield_table)
 
@@ -207,7 +207,7 @@ class FitResult:
         if self.chol is None:
             return v
         s = self.sigma if v.ndim == 1 else self.sigma[:, None]
-        return solve_triangular(self.chol, s * v, lower=True, check_finite=False)
+        return solve_lower(self.chol, s * v)
 
     @property
     def whitened(self) -> np.ndarray:
@@ -398,22 +398,6 @@ def _cholesky_each(mats) -> list:
         return [_cholesky(S) for S in mats]
 
 
-_TRTRS = get_lapack_funcs(("trtrs",), (np.empty((1, 1)),))[0]
-
-
-def _solve_lower(L, b):
-    """L^-1 b for a lower-triangular float64 L: the LAPACK call scipy's solve_triangular makes
-    (trtrs; a C-ordered L as its transpose's upper system), without its checks - a fit asks
-    this hundreds of thousands of times."""
-    if L.flags.f_contiguous:
-        x, info = _TRTRS(L, b, lower=1, trans=0)
-    else:
-        x, info = _TRTRS(L.T, b, lower=0, trans=1)
-    if info != 0:
-        raise np.linalg.LinAlgError("triangular solve failed (LAPACK info %d)" % info)
-    return x
-
-
 @dataclass(frozen=True)
 class _ModeFit:
     """A motion-mode mixture scored against the data at one point: per observation the mean,
@@ -587,7 +571,7 @@ class Problem:
             a = np.full(K, -np.inf)
             ks = [k for k in range(K) if not mc.log_p[k, g] < LOG_P_NEGLIGIBLE]
             for k, L in zip(ks, _cholesky_each([cov[k][ix] + dvar for k in ks])):
-                w = _solve_lower(L, self.y[on] - mean[k, on])
+                w = solve_lower(L, self.y[on] - mean[k, on])
                 a[k] = -0.5 * (w @ w) - np.sum(np.log(np.diag(L))) + mc.log_p[k, g]
             best = int(np.argmax(a))
             pick[on] = best
@@ -712,7 +696,7 @@ class Problem:
         if L is None:
             s = self.sigma_for(effects, theta)
             return v / (s if v.ndim == 1 else s[:, None])
-        return solve_triangular(L, v, lower=True, check_finite=False)
+        return solve_lower(L, v)
 
     def _scale_diag(self, effects, theta=None):
         """Per key, the factor whose logs sum to half the log-determinant: sigma, or the

@@ -426,7 +426,7 @@ class EmulatedTwin:
         (:class:`analysis.diagnose.Problem`)."""
         self._check_effects(effects)
         per, P, _ = self._modes_at(theta, effects)
-        means = [self._assemble(per[k], theta, effects, "mean").to_numpy(float) for k in per]
+        means = [self._assemble(per[k], theta, effects, "mean") for k in per]
         covs = [self._latent_cov(per[k], theta, effects) for k in per]
         return ModeComponents(modes=tuple(per), keys=self.keys, mean=np.stack(means),
                               cov=np.stack(covs),
@@ -434,8 +434,8 @@ class EmulatedTwin:
                               condition=self._key_condition)
 
     def _assemble(self, parts, theta, effects, which):
-        """A Series by self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at one point;
-        yields (and their sds, propagated through E_tot) from the speed and rate."""
+        """An array in the order of self.keys of ``which`` ('mean', 'latent_sd', 'chaos_sd') at
+        one point; yields (and their sds, propagated through E_tot) from the speed and rate."""
         v_col = SPEED_COLUMN[self.velocity_frame]
         direct, d_row, d_col, y_pos, y_col, y_t = self._lay
         table = np.vstack([getattr(parts[o], which)[0]
@@ -459,7 +459,7 @@ class EmulatedTwin:
                 f_s = getattr(parts["f_col_hz"], which)[0][y_col]
                 out[y_pos] = abs(slope) * y_t / 1000.0 * np.hypot(m * v_m * f_m * v_s,
                                                                   e_kin * f_s)
-        return pd.Series(out, index=self.keys, dtype=float)
+        return out
 
     def _latent_cov(self, parts, theta, effects):
         """The emulator's covariance of the twin's mean response between every pair of
@@ -555,7 +555,8 @@ class EmulatedTwin:
     def predict(self, theta, effects=None) -> pd.Series:
         """The twin's mean response by (condition_id, observable)."""
         self._check_effects(effects)
-        return self._assemble(self._parts_at(theta, effects), theta, effects, "mean")
+        return pd.Series(self._assemble(self._parts_at(theta, effects), theta, effects,
+                                        "mean"), index=self.keys, dtype=float)
 
     def model_se(self, theta=None, effects=None) -> pd.Series:
         """The emulator's sd of the twin's mean response at ``theta`` (default theta_ref): the
@@ -577,7 +578,8 @@ class EmulatedTwin:
         ``effects`` on."""
         theta = dict(theta or self.theta_ref)
         parts = self.dem_parts(self.point(theta, effects))
-        return self._assemble(parts, theta, None, "chaos_sd")
+        return pd.Series(self._assemble(parts, theta, None, "chaos_sd"), index=self.keys,
+                         dtype=float)
 
     def flight_run_sd(self) -> pd.Series:
         """One run's chaos of the impact observables per (condition, observable)."""

@@ -60,7 +60,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg import cho_solve
 from scipy.spatial.distance import cdist, pdist, squareform
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
@@ -68,6 +68,7 @@ from sklearn.gaussian_process.kernels import (ConstantKernel, DotProduct, Matern
                                               Sum, WhiteKernel)
 
 from analysis.fit_cache import Replay, Search, hyperparameters, kernels_with
+from analysis.linalg import solve_lower
 
 
 #: two-sided 95 % normal quantile
@@ -387,7 +388,7 @@ class GPEmulator(_UnitCube):
         corr = None if block is None else np.empty((n // block, k, block, block))
         for j, (gp, smooth) in enumerate(zip(self.gps_, self.smooth_)):
             Kt = smooth.cross(Xs)
-            V = solve_triangular(gp.L_, Kt.T, lower=True, check_finite=False)
+            V = solve_lower(gp.L_, Kt.T)
             y_sd = float(np.atleast_1d(gp._y_train_std)[0])
             mean[:, j] = (Kt @ gp.alpha_) * y_sd + float(np.atleast_1d(gp._y_train_mean)[0])
             var[:, j] = np.maximum(smooth.diag(Xs) - np.einsum("ij,ij->j", V, V), 0.0) * y_sd ** 2
@@ -597,8 +598,7 @@ def _laplace_proba(est, kernel, X) -> np.ndarray:
     from sklearn.gaussian_process._gpc import COEFS, LAMBDAS
     K_star = kernel.cross(X, train_first=True)
     f_star = K_star.T.dot(est.y_train_ - est.pi_)
-    v = np.ascontiguousarray(solve_triangular(est.L_, est.W_sr_[:, np.newaxis] * K_star,
-                                              lower=True, check_finite=False))   # solve's order
+    v = np.ascontiguousarray(solve_lower(est.L_, est.W_sr_[:, np.newaxis] * K_star))
     var = kernel.diag(X) - np.einsum("ij,ij->j", v, v)
     alpha = 1 / (2 * var)
     gamma = LAMBDAS * f_star

@@ -865,8 +865,8 @@ def twin_means(model, runs, theta, effects):
         se = (g.std(ddof=1).reindex(cids).to_numpy(float) / np.sqrt(np.maximum(n, 1)))
         parts[o] = Prediction(mean[None], np.nan_to_num(se, nan=0.0)[None],
                               np.zeros((1, len(cids))))
-    return (model._assemble(parts, theta, effects, "mean"),
-            model._assemble(parts, theta, effects, "latent_sd"))
+    return tuple(pd.Series(model._assemble(parts, theta, effects, which), index=model.keys,
+                           dtype=float) for which in ("mean", "latent_sd"))
 
 
 def fitted_moves(a, b) -> float:
