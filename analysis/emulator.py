@@ -655,11 +655,11 @@ class SmoothKernel:
         """The diagonal of k(X, X)."""
         if not self._fast:
             return self.kernel.diag(X)
-        K = np.full(len(X), self.c) * np.ones(len(X))
+        K = np.full(len(X), self.c)         # c x the Matern's diagonal of ones
         if self.lin is None:
             return K
         c, s0sq = self.lin
-        return K + np.full(len(X), c) * (np.einsum("ij,ij->i", X, X) + s0sq)
+        return K + c * (np.einsum("ij,ij->i", X, X) + s0sq)
 
 
 def _is_scaled(kernel, kind) -> bool:
