@@ -34,8 +34,9 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
 7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator,
    bounded by the misfit's rise (:func:`analysis.diagnose.profile_interval`: the emulator's
    own log-determinant left out, so no value is ruled out for the runs not made near it);
-   then the twin at each closed end's profiled point (``--interval-rounds``; the emulator
-   refitted, the final fit and the intervals redone; a round only for the ends that moved).
+   before the confirmation (step 6), the twin at each closed end's profiled point
+   (``--interval-rounds``; the emulator refitted, the fit and the intervals redone; a round
+   only for the ends that moved), and after it the intervals again on the final model.
 8. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
    ========================  ==================================================================
@@ -43,8 +44,8 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    ``diagnosis.csv``         one row per candidate: effect, kind, rank, significant, strength,
                              strength_se, delta_chi2, p_bonferroni, identifiable, step
    ``staircase.csv``         stage, chi2, dof, chi2_dof (baseline, calibrated, + each effect,
-                             twin rerun, refitted on the twin reruns, refitted with the
-                             interval ends' runs)
+                             refitted with the interval ends' runs, twin rerun,
+                             refitted on the twin reruns)
    ``steps.csv``             every diagnosis step's full ranking (column ``step``)
    ``parameters.csv``        name, role (base / effect), value, se, profile_lo, profile_hi
    ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z;
@@ -1123,9 +1124,9 @@ def run_committed(argv, runs_dir, log=print, committed_fits=True):
 
 def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None,
                track_cache=None, progress=True, log=print, committed_fits=True) -> LoopState:
-    """The stages in order (read, build, calibrate, select, focus, confirm, intervals) on one
-    state, returned: what :func:`run_loop` reports, and what a calibration
-    (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
+    """The stages in order (read, build, calibrate, select, focus, the intervals' ends,
+    confirm, intervals) on one state, returned: what :func:`run_loop` reports, and what a
+    calibration (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
     from analysis.fit_cache import COMMITTED_FITS, FitCache
     s = (settings or LoopSettings()).check()
     runs_dir = getattr(twin, "runs_dir", None)
@@ -1137,10 +1138,12 @@ def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None
     calibrate_stage(state)
     select_stage(state, log)
     focus_stage(state, twin, log)
+    if s.intervals and s.rerun and s.interval_rounds:
+        interval_stage(state, twin, log)    # the intervals' ends run before the reruns
     if s.rerun:
         confirm_stage(state, twin, log)
     if s.intervals:
-        interval_stage(state, twin if s.rerun else None, log)
+        profile_all(state)
     return state
 
 
@@ -1165,10 +1168,9 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
     if rr is not None:
         comp["twin_rerun"] = rr.prediction.to_numpy(float)
         comp["z_twin_rerun"] = rr.z.to_numpy(float)
-    # the last round's refit is the final fit unless the intervals' ends were run: its lean
-    # is already measured
+    # the last round's refit is the final fit: its lean is already measured
     lean = (state.reruns[-1].lean if state.reruns and state.reruns[-1].lean is not None
-            and not state.interval_rounds else lean_of(final, state.obs, state.settings.alpha))
+            else lean_of(final, state.obs, state.settings.alpha))
     from analysis.report.loop_words import fake_runs
     fake = fake_runs(*(r.runs for r in state.reruns))
     status, verdict = _verdict_words(fs.diagnoses, state.added, eff_se, cal, final, rr,
@@ -1701,7 +1703,8 @@ def settings_of(a, max_effects=None, extra=(), free=()) -> LoopSettings:
                         focus_points=a.focus_points,
                         rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                         confirm_rounds=rounds, intervals=not a.no_intervals,
-                        interval_rounds=a.interval_rounds, seed=a.seed, extra_effects=tuple(extra), free=tuple(free),
+                        interval_rounds=a.interval_rounds, seed=a.seed,
+                        extra_effects=tuple(extra), free=tuple(free),
                         n_jobs=max(int(getattr(a, "workers", 1) or 1), 1))
 
 

@@ -219,16 +219,18 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     assert list(st["stage"][:2]) == ["baseline", "calibrated"]
     assert st["chi2_dof"].iloc[1] <= st["chi2_dof"].iloc[0] + 1e-9   # calibration helps
     # the twin at the final point, then the emulator refitted with its runs
-    stages = list(st["stage"])
-    k = len(stages) - 1 - stages[::-1].index("twin rerun")
-    assert stages[k + 1] == "refitted on the twin reruns"
-    assert set(stages[k + 2:]) <= {"refitted with the interval ends' runs"}
+    assert list(st["stage"][-2:]) == ["twin rerun", "refitted on the twin reruns"]
     for f in ("steps.csv", "parameters.csv", "comparison.csv", "model_runs.csv",
               "rerun_runs.csv", "staircase.png", "ranking.png"):
         assert (out / f).is_file(), f
     runs = pd.read_csv(out / "model_runs.csv")
-    assert set(runs["wave"].astype(str)) == {"0", "1", "focus", "confirm 1"}
-    assert len(runs) == (12 + 3 + 4 + 3) * 8 + 2 * 8
+    waves = set(runs["wave"].astype(str))
+    assert {"0", "1", "focus", "confirm 1"} <= waves
+    assert waves <= {"0", "1", "focus", "confirm 1", "interval ends 1"}
+    ends = json.loads((out / "loop.json").read_text())["interval_rounds"]
+    n_ends = sum(r["n_runs"] for r in ends)
+    assert (runs["wave"].astype(str) == "interval ends 1").sum() == n_ends
+    assert len(runs) == (12 + 3 + 4 + 3) * 8 + 2 * 8 + n_ends
     # the focus wave: 3 points about the selected fit, every condition, one seed
     fw = runs[runs["wave"].astype(str) == "focus"]
     assert fw["point"].nunique() == 3 and len(fw) == 3 * 8
@@ -315,7 +317,9 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "wave 0 (12 points + the reference point x 3 seeds, 8 conditions): 120 runs" in text
     assert "up to 32 runs" in text and "focus wave: 24 runs" in text
-    assert "total: up to 192 runs" in text
+    assert ("runs at the intervals' ends: up to 112 (1 round(s) x 2 ends x 7 parameters x 8 "
+            "conditions" in text)
+    assert "total: up to 304 runs" in text
     assert "s per run, the FAKE analytic twin), plus the analysis" in text
     before = set(p.name for p in config.FAKE_RUNS_DIR.iterdir())
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o2"), "--fake",
