@@ -1325,7 +1325,7 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     a value the model cannot tell from the fit stays in the interval (model_se is read as the
     model's uncertainty about its mean, not as a scatter of the data). Each end is bracketed
     outwards in steps of the fit's standard error (at least 1 % of the range) and found by
-    bisection; then the rest of the range is scanned (:data:`PROFILE_SCAN_FRAC`) for values
+    bisection, the bracket's outer point reported (wide by at most the tolerance); then the rest of the range is scanned (:data:`PROFILE_SCAN_FRAC`) for values
     inside again - the interval is the hull of the region the profile allows, since an
     emulated response can bump up between values the data allow alike (measured on blind
     datasets: the true friction behind such a bump, 2.7 above the minimum). At each value the
@@ -1410,7 +1410,9 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
                         b = c
                     else:
                         a = c
-                return 0.5 * (a + b), False
+                # the bracket's outer end (the misfit seen at or above the threshold there):
+                # the interval errs wide by at most the tolerance, never narrow
+                return b, False
             if b in (p0.lower, p0.upper):
                 return b, True
             a, width = b, 1.5 * width

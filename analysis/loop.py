@@ -33,7 +33,10 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    refitted point leans on its uncertainty (:func:`lean_of`, :attr:`Lean.sure`).
 7. **intervals**: every fitted parameter's 95 % profile-likelihood interval on the emulator,
    bounded by the misfit's rise (:func:`analysis.diagnose.profile_interval`: the emulator's
-   own log-determinant left out, so no value is ruled out for the runs not made near it).
+   own log-determinant left out, so no value is ruled out for the runs not made near it);
+   before the confirmation (step 6), the twin at each closed end's profiled point
+   (``--interval-rounds``; the emulator refitted, the fit and the intervals redone; a round
+   only for the ends that moved), and after it the intervals again on the final model.
 8. **write** one folder (atomically; only a folder this project wrote is ever replaced):
 
    ========================  ==================================================================
@@ -41,7 +44,8 @@ effect's strength jointly and the conditions, fitted to every twin run made for 
    ``diagnosis.csv``         one row per candidate: effect, kind, rank, significant, strength,
                              strength_se, delta_chi2, p_bonferroni, identifiable, step
    ``staircase.csv``         stage, chi2, dof, chi2_dof (baseline, calibrated, + each effect,
-                             twin rerun, refitted on the twin reruns)
+                             refitted with the interval ends' runs, twin rerun,
+                             refitted on the twin reruns)
    ``steps.csv``             every diagnosis step's full ranking (column ``step``)
    ``parameters.csv``        name, role (base / effect), value, se, profile_lo, profile_hi
    ``comparison.csv``        per observable: measured, sd, calibrated, final, twin rerun, z;
@@ -114,6 +118,11 @@ CONFIRM_TOL_SE = 0.5
 CONFIRM_SEED0 = 100
 #: seed of the focus wave's runs (the design's seed added)
 FOCUS_SEED0 = 50
+#: seeds of the runs at the intervals' ends: round r uses INTERVAL_SEED0 + r
+INTERVAL_SEED0 = 300
+#: an interval end within this fraction of its interval's width of one already run is not
+#: run again (the rounds stop when no end moves by more)
+END_TOL_WIDTH = 0.1
 #: an observation is undecided (history matching) where the emulator's sd is above this share of
 #: the data's and the data are more than CUTOFF of their sds off its mean, but not of the
 #: combined sd: plausible only because the emulator does not know the twin there
@@ -135,6 +144,7 @@ class LoopSettings:
     rerun: bool = True               # the twin at the final point
     rerun_replicates: int = 3        # its seeds per condition [-]
     confirm_rounds: int = 2          # most reruns at moved final points [-]
+    interval_rounds: int = 3         # most rounds of runs at the intervals' ends [-]
     intervals: bool = True           # profile-likelihood intervals
     seed: int = 0                    # design seed [-]
     flights: bool = True             # impact observables from jar tracks
@@ -152,7 +162,8 @@ class LoopSettings:
             if getattr(self, name) < 1:
                 raise ValueError("--%s must be >= 1, got %d"
                                  % (name.replace("_", "-"), getattr(self, name)))
-        for name in ("waves", "null_draws", "max_effects", "focus_points"):
+        for name in ("waves", "null_draws", "max_effects", "focus_points",
+                     "interval_rounds"):
             if getattr(self, name) < 0:
                 raise ValueError("--%s must be >= 0, got %d"
                                  % (name.replace("_", "-"), getattr(self, name)))
@@ -605,6 +616,7 @@ class LoopState:
     dropped: list = field(default_factory=list)     # effects dropped after a rerun (prune)
     focus: dict = field(default_factory=dict)       # the focus wave: its centre, runs, before
     intervals: dict = field(default_factory=dict)   # name -> ProfileInterval
+    interval_rounds: list = field(default_factory=list)  # runs at the intervals' ends
     tracking: pd.DataFrame | None = None
     tracks: dict = field(default_factory=dict)
     progress: bool = True            # progress bars on stderr for the long analysis steps
@@ -987,8 +999,9 @@ def confirm_stage(state: LoopState, twin, log=print):
             state.stair = before + state.stair[1:]
 
 
-def interval_stage(state: LoopState):
-    """95 % profile-likelihood intervals of every fitted parameter on the final model."""
+def profile_all(state: LoopState):
+    """95 % profile-likelihood intervals of every fitted parameter on the current model and
+    final fit, into ``state.intervals``."""
     from analysis.diagnose import profile_interval
     w = WithAdded(state.model, state.added, state.theta)
     bp = fitted_parameters(state.model, state.theta, state.added)
@@ -997,6 +1010,86 @@ def interval_stage(state: LoopState):
                   leave=False):
         state.intervals[q.name] = profile_interval(w.predict, state.obs, bp, q.name,
                                                    state.final, model_se=w.model_se())
+
+
+def end_points(state: LoopState, done: dict) -> list:
+    """The profiled point at each closed interval end not yet run: (name, side, end value,
+    the base parameters there, the strengths there), the other parameters refitted on the
+    emulator with ``name`` held at the end - for the parameters that are the twin's inputs (the
+    design's base parameters and the DEM effects added; the powder line's and the measurement
+    chain's act after the twin). ``done`` maps (name, side) to the end value already run; an
+    end within :data:`END_TOL_WIDTH` of its interval's width of it is not run again."""
+    w = WithAdded(state.model, state.added, state.theta)
+    bp = fitted_parameters(state.model, state.theta, state.added)
+    cands = candidates()
+    inputs = set(state.model.space.base_names) | {k for k in state.added
+                                                   if cands[k].kind == "dem"}
+    out = []
+    for q in bp:
+        iv = state.intervals.get(q.name)
+        if iv is None or q.name not in inputs:
+            continue
+        width = iv.upper - iv.lower
+        for side, v, is_open in (("lower", iv.lower, iv.open_lower),
+                                 ("upper", iv.upper, iv.open_upper)):
+            prev = done.get((q.name, side))
+            if is_open or (prev is not None and abs(v - prev) <= END_TOL_WIDTH * width):
+                continue
+            held = [BaseParameter(p.name, float(v), float(v), float(v) + 1e-12 * (p.upper
+                                  - p.lower)) if p.name == q.name else p for p in bp]
+            _, fit = calibrate_base(w.predict, state.obs, held, model_se=w.model_se())
+            at = {p.name: float(fit.params[p.name]) for p in bp}
+            theta = {p.name: at[p.name] for p in state.model.base_params()}
+            out.append((q.name, side, float(v), theta,
+                        {k: at[k] for k in state.added}))
+    return out
+
+
+def interval_stage(state: LoopState, twin=None, log=print):
+    """95 % profile-likelihood intervals of every fitted parameter on the final model; then,
+    with a ``twin`` and ``interval_rounds`` > 0, the twin at each closed end's profiled point
+    (:func:`end_points`, one seed per condition: design points where the posterior's edge
+    lies - the emulator is refined at the fitted point, and an end it never saw runs at can
+    be its error rather than the data's), the emulator refitted with their runs, the final
+    fit and the intervals redone; rounds until no end moves (``interval_rounds`` at most)."""
+    from analysis.history_matching import design_runs
+    profile_all(state)
+    s, m = state.settings, state.model
+    if twin is None:
+        return
+    cands = candidates()
+    done = {}
+    for r in range(s.interval_rounds):
+        ends = end_points(state, done)
+        if not ends:
+            break
+        pts = []
+        for i, (name, side, v, theta, strengths) in enumerate(ends):
+            dem = {k: x for k, x in strengths.items() if cands[k].kind == "dem"}
+            pt = m.point(theta, dem)
+            pt.insert(0, "point", int(m.runs_["point"].max()) + 1 + i)
+            pts.append(pt)
+            done[(name, side)] = v
+        runs = design_runs(m.space, pd.concat(pts, ignore_index=True), m.conditions,
+                           seeds=(INTERVAL_SEED0 + r,), base_config=state.base_config)
+        runs["wave"] = "interval ends %d" % (r + 1)
+        before = {k: [iv.lower, iv.upper] for k, iv in state.intervals.items()}
+        log("twin runs at %d interval end(s) (round %d): %s" % (len(ends), r + 1, ", ".join(
+            "%s %s %.4g" % e[:3] for e in ends)))
+        runs = twin(runs)
+        m.fit(pd.concat([m.runs_, runs], ignore_index=True))
+        refit = joint_fit(m, state.obs, state.theta, state.added)
+        state.final = refit
+        state.set_point({p.name: refit.params[p.name] for p in m.base_params()},
+                        {k: refit.params[k] for k in state.added})
+        state.stair.append(_stage_row("refitted with the interval ends' runs", refit,
+                                      state.n_base + len(state.added)))
+        profile_all(state)
+        state.interval_rounds.append({
+            "round": r + 1, "n_points": len(ends), "n_runs": int(len(runs)),
+            "ends": [{"parameter": e[0], "side": e[1], "value": e[2]} for e in ends],
+            "before": before,
+            "after": {k: [iv.lower, iv.upper] for k, iv in state.intervals.items()}})
 
 
 def run_loop(dataset, settings: LoopSettings | None = None, *, twin: TwinRuns | None = None,
@@ -1031,9 +1124,9 @@ def run_committed(argv, runs_dir, log=print, committed_fits=True):
 
 def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None,
                track_cache=None, progress=True, log=print, committed_fits=True) -> LoopState:
-    """The stages in order (read, build, calibrate, select, focus, confirm, intervals) on one
-    state, returned: what :func:`run_loop` reports, and what a calibration
-    (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
+    """The stages in order (read, build, calibrate, select, focus, the intervals' ends,
+    confirm, intervals) on one state, returned: what :func:`run_loop` reports, and what a
+    calibration (:mod:`analysis.calibrate`, ``max_effects`` 0) samples its posterior on."""
     from analysis.fit_cache import COMMITTED_FITS, FitCache
     s = (settings or LoopSettings()).check()
     runs_dir = getattr(twin, "runs_dir", None)
@@ -1045,10 +1138,12 @@ def run_stages(dataset, settings: LoopSettings | None, *, twin, base_config=None
     calibrate_stage(state)
     select_stage(state, log)
     focus_stage(state, twin, log)
+    if s.intervals and s.rerun and s.interval_rounds:
+        interval_stage(state, twin, log)    # the intervals' ends run before the reruns
     if s.rerun:
         confirm_stage(state, twin, log)
     if s.intervals:
-        interval_stage(state)
+        profile_all(state)
     return state
 
 
@@ -1103,7 +1198,8 @@ def result_of(state: LoopState, *, new_runs, wall_s, failed=None) -> LoopResult:
                             failed[[c for c in ("run_id", "error", "wave", "point",
                                                 "condition_id", "seed") if c in failed]]
                             .to_dict("records")),
-            "reruns": [r.record() for r in state.reruns], "final_lean": lean.record()}
+            "reruns": [r.record() for r in state.reruns], "final_lean": lean.record(),
+            "interval_rounds": state.interval_rounds}
     return LoopResult(status=status, verdict=verdict,
                       effects={k: (state.added[k], eff_se[k]) for k in state.added},
                       staircase=pd.DataFrame(state.stair), diagnosis=diagnosis, steps=steps,
@@ -1607,7 +1703,8 @@ def settings_of(a, max_effects=None, extra=(), free=()) -> LoopSettings:
                         focus_points=a.focus_points,
                         rerun=not a.no_rerun, rerun_replicates=a.rerun_replicates,
                         confirm_rounds=rounds, intervals=not a.no_intervals,
-                        seed=a.seed, extra_effects=tuple(extra), free=tuple(free),
+                        interval_rounds=a.interval_rounds, seed=a.seed,
+                        extra_effects=tuple(extra), free=tuple(free),
                         n_jobs=max(int(getattr(a, "workers", 1) or 1), 1))
 
 
@@ -1656,10 +1753,13 @@ def plan_lines(ds, settings, base_config, twin) -> list:
                      per_wave=settings.per_wave, replicates=settings.replicates)
     rerun = (settings.confirm_rounds * settings.rerun_replicates * n_c) if settings.rerun else 0
     focus = settings.focus_points * n_c
+    n_par = len(state.model.space.base_names) + settings.max_effects
+    ends = (settings.interval_rounds * 2 * n_par * n_c
+            if settings.intervals and settings.rerun else 0)
     from analysis import config
     fake = Path(twin.runs_dir) == Path(config.FAKE_RUNS_DIR)
     per = FAKE_RUN_WALL_S if fake else run_wall_s(base_config, twin.runs_dir)
-    new_most = p0.new + most["refinement"] + focus + rerun
+    new_most = p0.new + most["refinement"] + focus + rerun + ends
     return [
         "wave 0 (%d points + the reference point x %d seeds, %d conditions): %s"
         % (settings.points, settings.replicates, n_c, p0.words(twin.workers)),
@@ -1670,10 +1770,13 @@ def plan_lines(ds, settings, base_config, twin) -> list:
         "twin reruns at the final point: up to %d runs (%d round(s) x %d seeds x %d conditions)"
         % (rerun, settings.confirm_rounds if settings.rerun else 0, settings.rerun_replicates,
            n_c),
+        "runs at the intervals' ends: up to %d (%d round(s) x 2 ends x %d parameters x %d "
+        "conditions; a round only for the ends that moved)"
+        % (ends, settings.interval_rounds if ends else 0, n_par, n_c),
         "total: up to %d runs, up to %d new, about %.0f min of twin runs on %d worker(s) "
         "(%.2g s per run%s), plus the analysis (the fits and the bootstrap draws: minutes to "
         "half an hour a loop on one core)"
-        % (p0.runs + most["refinement"] + focus + rerun, new_most,
+        % (p0.runs + most["refinement"] + focus + rerun + ends, new_most,
            math.ceil(new_most / max(twin.workers, 1)) * per / 60, twin.workers, per,
            ", the FAKE analytic twin" if fake else "")]
 
@@ -1738,6 +1841,11 @@ def build_parser() -> argparse.ArgumentParser:
                     % CONFIRM_TOL_SE)
     ap.add_argument("--no-intervals", action="store_true",
                     help="skip the profile-likelihood intervals (the se only)")
+    ap.add_argument("--interval-rounds", type=int, default=d.interval_rounds,
+                    help="most rounds of twin runs at the intervals' ends (one seed per "
+                    "condition at each closed end's profiled point; the emulator refitted, the "
+                    "final fit and the intervals redone; a round only for the ends that moved) "
+                    "[rounds] (default %(default)s; 0: none)")
     ap.add_argument("--alpha", type=float, default=d.alpha,
                     help="family-wise significance level of each diagnosis step [-] (default "
                     "%(default)s)")

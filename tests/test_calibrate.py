@@ -47,7 +47,7 @@ def test_calibration_on_the_loops_emulator_covers_the_truth(tmp_path):
     twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "runs", workers=1,
                     progress=False)
     s = cal.calibration_settings(points=14, waves=0, focus_points=3, rerun_replicates=2,
-                                 confirm_rounds=1)
+                                 confirm_rounds=1, interval_rounds=0)
     res = cal.calibrate(load_dataset(ds_dir), s, twin=twin, n_steps=300, burn=100,
                         progress=False, log=lambda m: None)
     frame = res.to_frame()

@@ -682,3 +682,33 @@ def test_shared_sd_must_lie_between_zero_and_sd():
     with pytest.raises(ValueError, match="shared_sd.*'y'"):
         Problem(lambda t, e=None: pd.Series([1.0, 2.0], index=keys), obs,
                 [BaseParameter("a", 0.5, 0.0, 1.0)], [], None, None, 1e-3, None)
+
+
+def test_profile_interval_ends_lie_on_or_just_outside_the_exact_ones():
+    """A model linear in its parameters (y = a + s x) has an exactly quadratic profile: the
+    95 % interval of s is s_hat -+ sqrt(3.84) se_s with se_s from (X'X)^-1. The bisection's
+    ends are its brackets' outer points: never inside the exact interval, outside by at most
+    the tolerance (PROFILE_TOL_STEPS of the bracketing step)."""
+    from analysis.diagnose import (PROFILE_TOL_STEPS, BaseParameter, calibrate_base,
+                                   profile_interval)
+    x = np.linspace(0.0, 1.0, 12)
+    keys = pd.MultiIndex.from_arrays([["c%d" % i for i in range(len(x))], ["y"] * len(x)])
+
+    def predict(theta, effects=None):
+        return pd.Series(theta["a"] + theta["s"] * x, index=keys)
+
+    sd = 0.05
+    X = np.column_stack([np.ones_like(x), x])
+    se_s = sd * np.sqrt(np.linalg.inv(X.T @ X)[1, 1])
+    for seed in range(4):
+        y = 1.0 + 0.5 * x + sd * np.random.default_rng(seed).standard_normal(len(x))
+        obs = pd.DataFrame({"condition_id": keys.get_level_values(0), "observable": "y",
+                            "value": y, "sd": sd})
+        base = [BaseParameter("a", 0.8, 0.0, 2.0), BaseParameter("s", 0.3, -1.0, 2.0)]
+        _, fit = calibrate_base(predict, obs, base)
+        s_hat = np.linalg.lstsq(X, y, rcond=None)[0][1]
+        iv = profile_interval(predict, obs, base, "s", fit)
+        half = np.sqrt(iv.threshold) * se_s
+        tol = PROFILE_TOL_STEPS * max(se_s, 0.03)
+        assert s_hat - half - tol <= iv.lower <= s_hat - half + 1e-7
+        assert s_hat + half - 1e-7 <= iv.upper <= s_hat + half + tol

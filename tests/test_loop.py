@@ -20,9 +20,11 @@ WIDE_CONDITIONS = pd.DataFrame({"condition_id": ["w%d" % i for i in range(8)],
                                 "frequency_hz": [20.0, 21.5, 23.0, 24.5, 26.0, 27.5, 29.0, 32.0],
                                 "ball_diameter_mm": [15.0, 21.0, 16.0, 20.0, 17.0, 19.0, 18.0,
                                                      22.0]})
-#: a small loop: wave 0 of 12 points, one refinement wave of 4, one rerun of 2 seeds
+#: a small loop: wave 0 of 12 points, one refinement wave of 4, one rerun of 2 seeds, no runs
+#: at the intervals' ends (their stage has its own test below: it triples the profiles' cost)
 SMALL = ["--points", "12", "--waves", "1", "--per-wave", "4", "--focus-points", "3",
-         "--rerun-replicates", "2", "--confirm-rounds", "1", "--workers", "1"]
+         "--rerun-replicates", "2", "--confirm-rounds", "1", "--interval-rounds", "0",
+         "--workers", "1"]
 
 
 # --------------------------------------------------------------------------- physics, not names
@@ -222,8 +224,13 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
               "rerun_runs.csv", "staircase.png", "ranking.png"):
         assert (out / f).is_file(), f
     runs = pd.read_csv(out / "model_runs.csv")
-    assert set(runs["wave"].astype(str)) == {"0", "1", "focus", "confirm 1"}
-    assert len(runs) == (12 + 3 + 4 + 3) * 8 + 2 * 8
+    waves = set(runs["wave"].astype(str))
+    assert {"0", "1", "focus", "confirm 1"} <= waves
+    assert waves <= {"0", "1", "focus", "confirm 1", "interval ends 1"}
+    ends = json.loads((out / "loop.json").read_text())["interval_rounds"]
+    n_ends = sum(r["n_runs"] for r in ends)
+    assert (runs["wave"].astype(str) == "interval ends 1").sum() == n_ends
+    assert len(runs) == (12 + 3 + 4 + 3) * 8 + 2 * 8 + n_ends
     # the focus wave: 3 points about the selected fit, every condition, one seed
     fw = runs[runs["wave"].astype(str) == "focus"]
     assert fw["point"].nunique() == 3 and len(fw) == 3 * 8
@@ -305,12 +312,14 @@ def test_each_stage_on_its_own_hands_on_a_typed_point(fake_dataset, tmp_path):
 def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
     from analysis import config
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--dry-run",
-                    "--fake"] + SMALL)
+                    "--fake"] + SMALL + ["--interval-rounds", "1"])
     assert rc == 0 and not (tmp_path / "o").exists()
     text = capsys.readouterr().out
     assert "wave 0 (12 points + the reference point x 3 seeds, 8 conditions): 120 runs" in text
     assert "up to 32 runs" in text and "focus wave: 24 runs" in text
-    assert "total: up to 192 runs" in text
+    assert ("runs at the intervals' ends: up to 112 (1 round(s) x 2 ends x 7 parameters x 8 "
+            "conditions" in text)
+    assert "total: up to 304 runs" in text
     assert "s per run, the FAKE analytic twin), plus the analysis" in text
     before = set(p.name for p in config.FAKE_RUNS_DIR.iterdir())
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o2"), "--fake",
@@ -323,14 +332,14 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
 def test_options_of_the_anchored_model_are_still_accepted(fake_dataset, tmp_path, capsys):
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--dry-run",
                     "--fake", "--max-reanchor", "0", "--diff-replicates", "2",
-                    "--max-refits", "0"] + SMALL[:-4])
+                    "--max-refits", "0"] + SMALL[:-6])
     assert rc == 0
     err = capsys.readouterr().err
     assert "--max-reanchor has no effect" in err and "--diff-replicates has no effect" in err
     ns = type("A", (), dict(alpha=0.01, max_effects=3, null_draws=0, points=12, replicates=3,
                             waves=1, per_wave=4, no_rerun=False, rerun_replicates=2,
                             confirm_rounds=2, max_refits=0, no_intervals=False, seed=0,
-                            focus_points=6))
+                            focus_points=6, interval_rounds=3))
     assert loop.settings_of(ns).confirm_rounds == 1          # --max-refits 0: one rerun
     for bad in (["--points", "1"], ["--per-wave", "0"], ["--confirm-rounds", "0"],
                 ["--alpha", "1.5"], ["--waves", "-1"], ["--focus-points", "-1"]):
@@ -990,3 +999,48 @@ def test_a_point_that_leans_on_the_emulator_is_refined_before_it_is_final(tmp_pa
     assert ("leans on the emulator" in res.verdict) is leaning
     if leans:                    # the rerun misfits the 0.03 % data: the sentence says why
         assert leaning is (not res.info["final_lean"]["sure"])
+
+
+def test_the_intervals_ends_are_run_and_the_intervals_redone(fake_dataset, tmp_path):
+    """The interval stage with a twin: each closed end of a design input's interval gets a
+    design point (that parameter at the end, the others profiled there) run at every
+    condition with one seed; the emulator is refitted with the runs, the final fit and the
+    intervals redone (the staircase's last row); the next round would run only the ends that
+    moved by more than END_TOL_WIDTH of their interval's width; the powder line's parameters
+    get no runs (they act after the twin)."""
+    # two of the base parameters free (the frictions held): the profiles' cost
+    s = loop.LoopSettings(base=("restitution", "amplitude_m"), points=10, waves=0,
+                          focus_points=0, null_draws=0, max_effects=0, interval_rounds=1)
+    state = loop.read_stage(load_dataset(fake_dataset), s, log=lambda m: None)
+    state.progress = False
+    twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "fake_runs", workers=1,
+                    progress=False)
+    loop.build_stage(state, twin, log=lambda m: None)
+    loop.calibrate_stage(state)
+    n0 = len(state.model.runs_)
+    loop.interval_stage(state, twin, log=lambda m: None)
+    (r,) = state.interval_rounds
+    runs = state.model.runs_.iloc[n0:]
+    n_c = len(state.model.conditions)
+    assert (runs["wave"] == "interval ends 1").all()
+    assert len(runs) == r["n_points"] * n_c == r["n_runs"] > 0
+    assert runs["seed"].nunique() == 1
+    design = set(state.model.space.base_names)
+    for e in r["ends"]:
+        assert e["parameter"] in design
+        lo, hi = r["before"][e["parameter"]]
+        assert e["value"] == (lo if e["side"] == "lower" else hi)
+        assert np.isclose(runs[e["parameter"]], e["value"]).sum() == n_c
+    assert {k: [iv.lower, iv.upper] for k, iv in state.intervals.items()} == r["after"]
+    assert state.stair[-1]["stage"] == "refitted with the interval ends' runs"
+    assert state.stair[-1]["chi2"] == state.final.chi2
+    done = {(e["parameter"], e["side"]): e["value"] for e in r["ends"]}
+    again = loop.end_points(state, done)
+    for name, side, v, theta, _ in again:
+        iv = state.intervals[name]
+        assert name in design and theta[name] == pytest.approx(v)
+        prev = done.get((name, side))
+        assert prev is None or abs(v - prev) > loop.END_TOL_WIDTH * (iv.upper - iv.lower)
+    assert loop.end_points(state, {(n, sd): v for n, sd, v, _, _ in again} | {
+        (n, "lower"): iv.lower for n, iv in state.intervals.items()} | {
+        (n, "upper"): iv.upper for n, iv in state.intervals.items()}) == []
