@@ -1045,9 +1045,9 @@ def end_points(state: LoopState, done: dict) -> list:
     return out
 
 
-def interval_stage(state: LoopState, twin=None, log=print):
+def interval_stage(state: LoopState, twin, log=print):
     """95 % profile-likelihood intervals of every fitted parameter on the final model; then,
-    with a ``twin`` and ``interval_rounds`` > 0, the twin at each closed end's profiled point
+    ``interval_rounds`` times at most, the ``twin`` at each closed end's profiled point
     (:func:`end_points`, one seed per condition: design points where the posterior's edge
     lies - the emulator is refined at the fitted point, and an end it never saw runs at can
     be its error rather than the data's), the emulator refitted with their runs, the final
@@ -1055,8 +1055,6 @@ def interval_stage(state: LoopState, twin=None, log=print):
     from analysis.history_matching import design_runs
     profile_all(state)
     s, m = state.settings, state.model
-    if twin is None:
-        return
     cands = candidates()
     done = {}
     for r in range(s.interval_rounds):
