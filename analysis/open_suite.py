@@ -290,22 +290,38 @@ def detectability(dataset, truth, loop_dir, each=False) -> tuple:
     total = _leftover_chi2(m, obs, truth, {}) - with_all
     if not each:
         return total, {}
-    if not joint_runs(loop_dir, true):      # the fit with all on would be an extrapolation
-        return total, {k: float("nan") for k in true}
-    return total, {k: _leftover_chi2(m, obs, truth, {j: s for j, s in true.items() if j != k})
-                   - with_all for k in true}
+    if joint_runs(loop_dir, true):
+        return total, {k: _leftover_chi2(m, obs, truth, _others(true, k)) - with_all
+                       for k in true}
+    # the fit with all on would be an extrapolation; the fit with the others on is measured
+    # where the loop ran them, and what an effect explains beyond them is at most its chi2
+    return total, {k: _beyond_bound(m, obs, truth, loop_dir, _others(true, k)) for k in true}
+
+
+def _others(true, k) -> dict:
+    return {j: s for j, s in true.items() if j != k}
+
+
+def _beyond_bound(m, obs, truth, loop_dir, others) -> float:
+    """Where no run had every hidden effect on: the chi2 of the fit with only ``others`` on
+    (an upper bound on what the remaining effect explains beyond them, the fit with all on
+    having chi2 >= 0) when the loop ran ``others`` together and the bound is under
+    :data:`DETECTABLE_CHI2` - the effect cannot be told from the base parameters beside the
+    others; NaN (not measured) otherwise."""
+    if not joint_runs(loop_dir, others):
+        return float("nan")
+    bound = _leftover_chi2(m, obs, truth, others)
+    return bound if bound < DETECTABLE_CHI2 else float("nan")
 
 
 def joint_runs(loop_dir, effects) -> int:
     """How many of ``loop_dir``'s twin runs (model_runs.csv) had every DEM effect of
     ``effects`` on together: with none, the emulator's response to them together is an
-    extrapolation from each one alone, and what each explains beyond the others is not
-    measured. Fewer than two DEM effects: every run counts."""
+    extrapolation from each one alone (or from none), and what each explains beyond the
+    others is not measured. No DEM effect: every run counts."""
     from analysis.catalog import candidates
     runs = pd.read_csv(Path(loop_dir) / "model_runs.csv")
     dem = ["effect:%s" % k for k in effects if candidates()[k].kind == "dem"]
-    if len(dem) < 2:
-        return len(runs)
     if not set(dem) <= set(runs.columns):
         return 0
     return int((runs[dem].fillna(0.0) > 0).all(axis=1).sum())

@@ -145,8 +145,9 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     from analysis.fake_twin import run_fake_twin
     from analysis.hidden import make_hidden_dataset
     from analysis.loop import LoopSettings, write_loop
-    from analysis.open_suite import (_leftover_chi2, _true_hidden, detectable_chi2,
-                                     detectable_each, joint_runs, loop_model)
+    from analysis.open_suite import (DETECTABLE_CHI2, _beyond_bound, _leftover_chi2,
+                                     _true_hidden, detectable_chi2, detectable_each,
+                                     joint_runs, loop_model)
     from analysis.twin_runs import TwinRuns
     conds = pd.DataFrame({"condition_id": ["p%d" % i for i in range(6)],
                           "frequency_hz": [21.0, 23.0, 25.0, 27.0, 29.0, 31.0],
@@ -191,17 +192,28 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     # machine, 7.7 -> 5.3 on another): far less than the no-effect chi2's rise
     assert abs(detectable_chi2(ds, truth, loop_dir) - det) < 0.3 * rise
     # the loop's runs never had both effects on together: what each explains beyond the
-    # other would be an extrapolation, and is not measured
+    # other would be an extrapolation; the fit with the other alone on is measured, and its
+    # chi2 bounds what the effect explains beyond it - given when under the detectable bar
+    # (not measured while the outlier lifts the bound over the bar)
     assert joint_runs(loop_dir, true) == 0
     each = detectable_each(ds, truth, loop_dir)
     assert set(each) == {"jar_compliance", "powder_layer"}
     assert all(np.isnan(v) for v in each.values()), each
+    made(true)
+    each = detectable_each(ds, truth, loop_dir)
+    bound = {k: _leftover_chi2(m, obs, truth, {j: s for j, s in true.items() if j != k})
+             for k in true}
+    assert all(b < DETECTABLE_CHI2 for b in bound.values()), bound
+    assert each == pytest.approx(bound), (each, bound)
     runs = pd.read_csv(loop_dir / "model_runs.csv")
     both = runs[runs["effect:jar_compliance"] > 0].assign(**{"effect:powder_layer": 0.5})
     pd.concat([runs, both]).to_csv(loop_dir / "model_runs.csv", index=False)
     assert joint_runs(loop_dir, true) == len(both) > 0
     each = detectable_each(ds, truth, loop_dir)
     assert all(np.isfinite(v) for v in each.values()), each
+    # an effect the loop never ran: the fit with it on is not measured, nor the bound
+    runs.assign(**{"effect:powder_layer": 0.0}).to_csv(loop_dir / "model_runs.csv", index=False)
+    assert np.isnan(_beyond_bound(m, obs, truth, loop_dir, {"powder_layer": 1.0}))
     made({})
     assert detectable_chi2(ds, truth, loop_dir) < 0.5
     assert np.isnan(detectable_chi2(ds, truth, tmp_path / "no-loop"))
