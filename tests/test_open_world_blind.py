@@ -139,15 +139,16 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     model makes with the effects on score the no-effect fit's whole chi2; one realisation's
     chaos (a speed moved by 6 of its sds) is in both fits and moves it far less than the
     no-effect fit's chi2 alone rises (26: what the old measure counted as the effect's);
-    values made without the effects score <= 0; each hidden effect is scored; no loop folder
-    gives NaN."""
+    values made without the effects score <= 0; each hidden effect is scored; no loop folder,
+    or values the model cannot make at the truth, give NaN."""
     import pandas as pd
     from analysis.fake_twin import run_fake_twin
     from analysis.hidden import make_hidden_dataset
     from analysis.loop import LoopSettings, write_loop
-    from analysis.open_suite import (DETECTABLE_CHI2, _beyond_bound, _leftover_chi2,
-                                     _true_hidden, detectable_chi2, detectable_each,
-                                     joint_runs, loop_model)
+    from scipy import stats
+    from analysis.open_suite import (DETECTABLE_CHI2, TRUTH_FIT_P, _beyond_bound,
+                                     _leftover_chi2, _true_hidden, detectability,
+                                     detectable_chi2, detectable_each, joint_runs, loop_model)
     from analysis.twin_runs import TwinRuns
     conds = pd.DataFrame({"condition_id": ["p%d" % i for i in range(6)],
                           "frequency_hz": [21.0, 23.0, 25.0, 27.0, 29.0, 31.0],
@@ -216,6 +217,11 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     assert np.isnan(_beyond_bound(m, obs, truth, loop_dir, {"powder_layer": 1.0}))
     made({})
     assert detectable_chi2(ds, truth, loop_dir) < 0.5
+    # values the model cannot make at the truth (a speed 60 of its sds off): the model is
+    # wrong there, and what the effects explain is not measured
+    truth["twin_means"]["p2"]["v_mean_m_s"] += 60.0 * sd
+    total, _, fit = detectability(ds, truth, loop_dir)
+    assert np.isnan(total) and fit > stats.chi2.isf(TRUTH_FIT_P, len(obs)), fit
     assert np.isnan(detectable_chi2(ds, truth, tmp_path / "no-loop"))
 
 
