@@ -1005,110 +1005,16 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     theta0 = {p.name: p.value for p in prob.base}
     baseline = prob.stage(theta0)
     cal = prob.best_fit(theta0)
-    theta_c = {k: cal.params[k] for k in theta0}
-    r = cal.whitened                         # measured - model, whitened
-    J = cal.jac.to_numpy()
-    n, p = prob.n, len(prob.base)
-    K = len(prob.effects)
-    noise_var = 2.0 * (1.0 - crn_correlation) * (prob.model_se / prob.sigma) ** 2
-    proj_noise = float(np.sum(noise_var)) * max(n - p, 1) / n
-    obs_names = np.asarray(prob.keys.get_level_values(1))
-    indep = (np.ones(n, bool) if noise_observables is None
-             else np.isin(obs_names, list(noise_observables)))
-
+    noise = _FDNoise.of(prob, crn_correlation, noise_observables)
+    rules = _Rules(alpha, min_footprint, min_snr, effect_step_frac)
     from tqdm.auto import tqdm
     rows, fits, sigs = [], {}, {}
     for name, e in tqdm(prob.effects.items(), total=len(prob.effects), desc=progress or "",
                         unit="candidate", disable=not progress, leave=False):
-        travel = e.far - e.null
-        h = effect_step_frac * travel
-        g = (prob.mu(theta_c, {name: e.null + h}) - prob.mu(theta_c, {name: e.null})) / h
-        gw = prob.white(g, {}, theta_c)
-        gp = _project_out(J, gw)
-        sigs[name] = gp
-        vfar = prob.white(prob.mu(theta_c, {name: e.far}) - prob.mu(theta_c, {name: e.null}),
-                          {}, theta_c)
-        vp = _project_out(J, vfar)
-        fp2 = float(vp @ vp)
-        footprint = math.sqrt(max(fp2 - proj_noise, 0.0))
-        # the signature against its own noise, entry by entry (matched chi-square test over
-        # the independently drawn observables); a kinetics effect's change carries no noise
-        if e.kind in ("kinetics", "observation"):     # a function of the model's mean
-            footprint = math.sqrt(fp2)
-            snr = math.inf if fp2 > 0 else 0.0
-        else:
-            nz = (noise_var > 0) & indep
-            free = (noise_var == 0) & indep
-            if free.any() and np.any(vfar[free] != 0):
-                snr = math.inf                      # a noise-free entry moved
-            elif nz.any():
-                T = float(np.sum(vfar[nz] ** 2 / noise_var[nz]))
-                snr = (T - nz.sum()) / math.sqrt(2.0 * nz.sum())
-            else:
-                snr = 0.0
-        gn2, gpn2 = float(gw @ gw), float(gp @ gp)
-        U = float(gp @ r)
-        if gpn2 > 0:
-            s_lin = e.null + U / gpn2
-            score = U * U / gpn2
-        else:
-            s_lin, score = e.null, 0.0
-        # one-sided: a strength that cannot move the wanted way gives no score
-        if (s_lin - e.null) * travel < 0 and e.null_on_bound:
-            score = 0.0
-        start = float(np.clip(s_lin, e.lower, e.upper))
-        fit = prob.best_fit(theta_c, effect=name, start_strength=start)
-        # also start from null and from the best points of a scan over the strength's range
-        # (a library-interpolated response can have several minima); keep the best optimum
-        if start != e.null:
-            f0 = prob.fit(theta_c, effect=name, start_strength=e.null + 0.1 * h)
-            if f0.objective < fit.objective:
-                fit = f0
-        for s0, c0 in _scan_starts(prob, theta_c, name, J, exclude=(start,)):
-            if c0 >= fit.objective:
-                continue                  # its (linear) profile is already worse: no fit
-            f0 = prob.fit(prob.profiled_start(theta_c, name, s0), effect=name,
-                          start_strength=s0)
-            if f0.objective < fit.objective:
-                fit = f0
-        fits[name] = fit
-        d = max(cal.objective - fit.objective, 0.0)   # 2 x the log-likelihood gain
-        dof_after = max(fit.dof, 1)
-        p_lr = float(stats.chi2.sf(d, 1)) if d > 0 else 1.0
-        if e.null_on_bound:
-            p_lr = 0.5 * p_lr if d > 0 else 1.0
-        F = d / max(fit.chi2 / dof_after, 1e-300)
-        p_f = float(stats.f.sf(F, 1, dof_after)) if d > 0 else 1.0
-        if e.null_on_bound:
-            p_f = 0.5 * p_f if d > 0 else 1.0
-        pv = max(p_lr, p_f)
-        cov = fit.cov.to_numpy()
-        sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-        corr = cov[-1, :-1] / (sd[-1] * sd[:-1]) if p else np.zeros(0)
-        identifiable = footprint >= min_footprint and snr >= min_snr
-        p_bonf = min(1.0, K * pv)
-        bic_gain = d - math.log(n)
-        rows.append({
-            "effect": name, "kind": e.kind, "delta_chi2": d, "score": score,
-            "p_value": pv, "p_bonferroni": p_bonf, "bic_gain": bic_gain,
-            "strength": fit.params[name], "strength_se": fit.stderr[name],
-            "strength_lin": s_lin, "strength_lin_se": (1.0 / math.sqrt(gpn2) if gpn2 > 0
-                                                      else math.inf),
-            "strength_at_bound": (name in fit.at_bound
-                                  and abs(fit.params[name] - e.null) > 1e-9 * abs(travel)),
-            "signature_norm": math.sqrt(gn2), "projected_norm": math.sqrt(gpn2),
-            "absorbed_frac": 1.0 - gpn2 / gn2 if gn2 > 0 else float("nan"),
-            "footprint": footprint, "signature_snr": snr,
-            "corr_base_max": float(np.max(np.abs(corr))) if corr.size else 0.0,
-            "identifiable": identifiable,
-            "significant": bool(identifiable and p_bonf < alpha and bic_gain > 0),
-            "chi2_dof_after": fit.chi2_dof})
-    table = pd.DataFrame(rows)
-    table = table.sort_values(["identifiable", "delta_chi2"], ascending=[False, False],
-                              kind="stable").reset_index(drop=True)
-    table.insert(0, "rank", np.arange(1, len(table) + 1))
-    threshold = float(stats.chi2.isf(2.0 * alpha / max(K, 1), 1))
-
+        row, fits[name], sigs[name] = _test_candidate(prob, cal, name, e, noise, rules)
+        rows.append(row)
+    table = _ranked(rows)
+    threshold = float(stats.chi2.isf(2.0 * alpha / max(len(prob.effects), 1), 1))
     struct = (residual_structure(cal, prob.conditions, alpha=alpha) if structure
               else pd.DataFrame())
     status, best, verdict = _verdict(table, cal, fits, struct, sigs, alpha, prob)
@@ -1116,6 +1022,144 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
                      status=status, best=best, verdict=verdict, alpha=alpha,
                      threshold_delta_chi2=threshold, n_predict_calls=prob.n_calls,
                      projected_signatures=pd.DataFrame(sigs, index=prob.keys))
+
+
+@dataclass(frozen=True)
+class _Rules:
+    """:func:`diagnose`'s tests: family-wise level, identifiability bars, the signature's FD
+    step."""
+    alpha: float
+    min_footprint: float
+    min_snr: float
+    effect_step_frac: float
+
+
+@dataclass(frozen=True)
+class _FDNoise:
+    """The twin's noise in a finite difference of two predictions, per whitened observation
+    (``var``), its sum projected off the base parameters (``projected``), and which
+    observables are independent draws (``indep``)."""
+    var: np.ndarray
+    projected: float
+    indep: np.ndarray
+
+    @classmethod
+    def of(cls, prob, crn_correlation, noise_observables):
+        n, p = prob.n, len(prob.base)
+        var = 2.0 * (1.0 - crn_correlation) * (prob.model_se / prob.sigma) ** 2
+        names = np.asarray(prob.keys.get_level_values(1))
+        indep = (np.ones(n, bool) if noise_observables is None
+                 else np.isin(names, list(noise_observables)))
+        return cls(var, float(np.sum(var)) * max(n - p, 1) / n, indep)
+
+    def snr(self, e, vfar, fp2) -> float:
+        """The signature against its own noise, entry by entry (matched chi-square test over
+        the independently drawn observables); a kinetics or observation effect's change is a
+        function of the model's mean and carries no noise."""
+        if e.kind in ("kinetics", "observation"):
+            return math.inf if fp2 > 0 else 0.0
+        nz = (self.var > 0) & self.indep
+        free = (self.var == 0) & self.indep
+        if free.any() and np.any(vfar[free] != 0):
+            return math.inf                      # a noise-free entry moved
+        if nz.any():
+            T = float(np.sum(vfar[nz] ** 2 / self.var[nz]))
+            return (T - nz.sum()) / math.sqrt(2.0 * nz.sum())
+        return 0.0
+
+
+def _test_candidate(prob, cal, name, e, noise, rules):
+    """One candidate beside the calibrated base: (its row of the table, its best fit, its
+    signature projected off the base parameters)."""
+    theta_c = {p.name: cal.params[p.name] for p in prob.base}
+    r, J = cal.whitened, cal.jac.to_numpy()
+    travel = e.far - e.null
+    h = rules.effect_step_frac * travel
+    g = (prob.mu(theta_c, {name: e.null + h}) - prob.mu(theta_c, {name: e.null})) / h
+    gw = prob.white(g, {}, theta_c)
+    gp = _project_out(J, gw)
+    vfar = prob.white(prob.mu(theta_c, {name: e.far}) - prob.mu(theta_c, {name: e.null}),
+                      {}, theta_c)
+    vp = _project_out(J, vfar)
+    fp2 = float(vp @ vp)
+    footprint = (math.sqrt(fp2) if e.kind in ("kinetics", "observation")
+                 else math.sqrt(max(fp2 - noise.projected, 0.0)))
+    gn2, gpn2 = float(gw @ gw), float(gp @ gp)
+    U = float(gp @ r)
+    if gpn2 > 0:
+        s_lin = e.null + U / gpn2
+        score = U * U / gpn2
+    else:
+        s_lin, score = e.null, 0.0
+    # one-sided: a strength that cannot move the wanted way gives no score
+    if (s_lin - e.null) * travel < 0 and e.null_on_bound:
+        score = 0.0
+    fit = _candidate_fit(prob, theta_c, name, e, J, float(np.clip(s_lin, e.lower, e.upper)), h)
+    d = max(cal.objective - fit.objective, 0.0)   # 2 x the log-likelihood gain
+    cov = fit.cov.to_numpy()
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov[-1, :-1] / (sd[-1] * sd[:-1]) if len(prob.base) else np.zeros(0)
+    pv = _gain_p_value(d, fit, e.null_on_bound)
+    p_bonf = min(1.0, len(prob.effects) * pv)
+    bic_gain = d - math.log(prob.n)
+    snr = noise.snr(e, vfar, fp2)
+    identifiable = footprint >= rules.min_footprint and snr >= rules.min_snr
+    row = {
+        "effect": name, "kind": e.kind, "delta_chi2": d, "score": score,
+        "p_value": pv, "p_bonferroni": p_bonf, "bic_gain": bic_gain,
+        "strength": fit.params[name], "strength_se": fit.stderr[name],
+        "strength_lin": s_lin, "strength_lin_se": (1.0 / math.sqrt(gpn2) if gpn2 > 0
+                                                  else math.inf),
+        "strength_at_bound": (name in fit.at_bound
+                              and abs(fit.params[name] - e.null) > 1e-9 * abs(travel)),
+        "signature_norm": math.sqrt(gn2), "projected_norm": math.sqrt(gpn2),
+        "absorbed_frac": 1.0 - gpn2 / gn2 if gn2 > 0 else float("nan"),
+        "footprint": footprint, "signature_snr": snr,
+        "corr_base_max": float(np.max(np.abs(corr))) if corr.size else 0.0,
+        "identifiable": identifiable,
+        "significant": bool(identifiable and p_bonf < rules.alpha and bic_gain > 0),
+        "chi2_dof_after": fit.chi2_dof}
+    return row, fit, gp
+
+
+def _candidate_fit(prob, theta_c, name, e, J, start, h):
+    """The candidate's best fit: from its linear estimate ``start``, from null and from the
+    best points of a scan over the strength's range (a library-interpolated response can have
+    several minima); the best optimum."""
+    fit = prob.best_fit(theta_c, effect=name, start_strength=start)
+    if start != e.null:
+        f0 = prob.fit(theta_c, effect=name, start_strength=e.null + 0.1 * h)
+        if f0.objective < fit.objective:
+            fit = f0
+    for s0, c0 in _scan_starts(prob, theta_c, name, J, exclude=(start,)):
+        if c0 >= fit.objective:
+            continue                  # its (linear) profile is already worse: no fit
+        f0 = prob.fit(prob.profiled_start(theta_c, name, s0), effect=name, start_strength=s0)
+        if f0.objective < fit.objective:
+            fit = f0
+    return fit
+
+
+def _gain_p_value(d, fit, null_on_bound) -> float:
+    """The larger of the likelihood-ratio and the F test's p-values of a chi2 gain ``d`` (one
+    parameter added); halved when the null strength is on its bound."""
+    if d <= 0:
+        return 1.0
+    dof_after = max(fit.dof, 1)
+    p_lr = float(stats.chi2.sf(d, 1))
+    p_f = float(stats.f.sf(d / max(fit.chi2 / dof_after, 1e-300), 1, dof_after))
+    if null_on_bound:
+        p_lr, p_f = 0.5 * p_lr, 0.5 * p_f
+    return max(p_lr, p_f)
+
+
+def _ranked(rows) -> pd.DataFrame:
+    """The candidates' rows, identifiable ones first, by chi2 gain; a rank column."""
+    table = pd.DataFrame(rows)
+    table = table.sort_values(["identifiable", "delta_chi2"], ascending=[False, False],
+                              kind="stable").reset_index(drop=True)
+    table.insert(0, "rank", np.arange(1, len(table) + 1))
+    return table
 
 
 def _verdict(table, cal, fits, struct, sigs, alpha, prob):
