@@ -1369,7 +1369,8 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     a value the model cannot tell from the fit stays in the interval (model_se is read as the
     model's uncertainty about its mean, not as a scatter of the data). Each end is bracketed
     outwards in steps of the fit's standard error (at least 1 % of the range) and found by
-    bisection, the bracket's outer point reported (wide by at most the tolerance); then the rest of the range is scanned (:data:`PROFILE_SCAN_FRAC`) for values
+    bisection, the bracket's outer point reported (wide by at most the tolerance); then the
+    rest of the range is scanned (:data:`PROFILE_SCAN_FRAC`) for values
     inside again - the interval is the hull of the region the profile allows, since an
     emulated response can bump up between values the data allow alike (measured on blind
     datasets: the true friction behind such a bump, 2.7 above the minimum). At each value the
@@ -1383,16 +1384,47 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
     if not 0.0 < level < 1.0:
         raise ValueError("profile_interval: level must lie in (0, 1), got %g" % level)
     p0 = bp[name]
-    others = [BaseParameter(q.name, float(np.clip(fit.params[q.name], q.lower, q.upper)),
-                            q.lower, q.upper) for q in base_params if q.name != name]
     thr = float(stats.chi2.ppf(level, 1))
     x_hat = float(np.clip(fit.params[name], p0.lower, p0.upper))
-    start = {q.name: q.value for q in others}
-    fit_others = dict(start)
+    prof = _Profile(predict, observations, p0,
+                    [BaseParameter(q.name, float(np.clip(fit.params[q.name], q.lower, q.upper)),
+                                   q.lower, q.upper) for q in base_params if q.name != name],
+                    model_se, base_step_frac)
+    ref = prof.misfit(x_hat)
+    se = float(fit.stderr.get(name, np.nan))
+    step = max(se if np.isfinite(se) and se > 0 else 0.0, 0.01 * (p0.upper - p0.lower))
+    edges = _ProfileEdges(lambda x: prof.misfit(x) - ref - thr, p0, step, max_steps)
 
-    batch = prefetcher(predict)
+    def end(direction):
+        prof.restart()
+        return edges.end(x_hat, direction)
 
-    def misfit(x):
+    lo, open_lo = end(-1.0) if x_hat > p0.lower else (p0.lower, True)
+    hi, open_hi = end(+1.0) if x_hat < p0.upper else (p0.upper, True)
+    return ProfileInterval(name, x_hat, lo, hi, level, thr, open_lo, open_hi)
+
+
+class _Profile:
+    """The misfit profile of one parameter (``p0``): at each value of it the ``others``
+    refitted from where the last value's fit ended and from the fit's own values, the better
+    kept (one local fit follows a ridge and can lose it; a profile made of such fits jumps up
+    and down between values the data allow alike); chi2 plus the motion modes' rows."""
+
+    def __init__(self, predict, observations, p0, others, model_se, base_step_frac):
+        self.predict, self.observations, self.p0 = predict, observations, p0
+        self.others, self.model_se, self.base_step_frac = others, model_se, base_step_frac
+        self.fit_others = {q.name: q.value for q in others}
+        self.start = dict(self.fit_others)
+        self.batch = prefetcher(predict)
+
+    def restart(self):
+        """The next value's fit starts from the fit's own values."""
+        self.start.update(self.fit_others)
+
+    def _held(self, x):
+        """The model and its uncertainty with the parameter held at ``x``."""
+        name, predict, model_se, batch = self.p0.name, self.predict, self.model_se, self.batch
+
         def pred(theta, effects=None):
             return predict(dict(theta, **{name: float(x)}), effects)
         if batch is not None:
@@ -1405,52 +1437,55 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
             if getattr(model_se, hook, None) is not None:
                 setattr(se_fn, hook, lambda theta, effects=None, f=getattr(model_se, hook):
                         f(dict(theta, **{name: float(x)}), effects))
-        ms = se_fn if callable(model_se) else model_se
-        starts = [BaseParameter(q.name, float(np.clip(start[q.name], q.lower, q.upper)),
-                                q.lower, q.upper) for q in others]
+        return pred, (se_fn if callable(model_se) else model_se)
+
+    def misfit(self, x) -> float:
+        pred, ms = self._held(x)
+        starts = [BaseParameter(q.name, float(np.clip(self.start[q.name], q.lower, q.upper)),
+                                q.lower, q.upper) for q in self.others]
         if not starts:
-            prob = Problem(pred, observations, [BaseParameter("_none", 0.5, 0.0, 1.0)], [],
-                           ms, None, base_step_frac, None)
+            prob = Problem(pred, self.observations, [BaseParameter("_none", 0.5, 0.0, 1.0)],
+                           [], ms, None, self.base_step_frac, None)
             f = prob.stage({"_none": 0.5})
             return f.chi2 + float(np.sum(prob.mode_rows({}, f.params) ** 2))
-        prob = Problem(pred, observations, starts, [], ms, None, base_step_frac, None)
-        # the other parameters refitted from where the last value's ended and from the fit:
-        # the better of the two (one local fit follows a ridge and can lose it; a profile
-        # made of such fits jumps up and down between values the data allow alike)
+        prob = Problem(pred, self.observations, starts, [], ms, None, self.base_step_frac,
+                       None)
         begins = [{q.name: q.value for q in starts}]
-        if begins[0] != fit_others:
-            begins.append(fit_others)
+        if begins[0] != self.fit_others:
+            begins.append(self.fit_others)
         best = None
         for begin in begins:
             f = prob.fit(begin)
             v = f.chi2 + float(np.sum(prob.mode_rows({}, f.params) ** 2))
             if best is None or v < best[0]:
                 best = (v, f)
-        start.update({q.name: best[1].params[q.name] for q in starts})
+        self.start.update({q.name: best[1].params[q.name] for q in starts})
         return best[0]
 
-    ref = misfit(x_hat)
 
-    def rise(x):
-        return misfit(x) - ref - thr
+@dataclass(frozen=True)
+class _ProfileEdges:
+    """Where a profile's ``rise`` (its misfit less the fit's, less the threshold) crosses 0,
+    for a parameter ``p0`` bracketed in growing steps from ``step``."""
+    rise: object
+    p0: BaseParameter
+    step: float
+    max_steps: int
 
-    se = float(fit.stderr.get(name, np.nan))
-    step = max(se if np.isfinite(se) and se > 0 else 0.0, 0.01 * (p0.upper - p0.lower))
-
-    def crossing(a, direction):
+    def crossing(self, a, direction):
         """From ``a`` (inside), outwards in growing steps to where the misfit has risen by
         the threshold, that edge bisected: (edge, reached the bound)."""
-        width = step
-        for _ in range(max_steps):
+        p0, width = self.p0, self.step
+        for _ in range(self.max_steps):
             b = float(np.clip(a + direction * width, p0.lower, p0.upper))
-            if rise(b) >= 0:
+            if self.rise(b) >= 0:
                 # bisection on the signs seen (each inner fit starts where the last ended, so
                 # a point's value may differ slightly between two calls: no re-evaluation)
                 for _ in range(40):
-                    if abs(b - a) <= PROFILE_TOL_STEPS * step:
+                    if abs(b - a) <= PROFILE_TOL_STEPS * self.step:
                         break
                     c = 0.5 * (a + b)
-                    if rise(c) >= 0:
+                    if self.rise(c) >= 0:
                         b = c
                     else:
                         a = c
@@ -1462,25 +1497,21 @@ def profile_interval(predict, observations, base_params, name, fit: FitResult, *
             a, width = b, 1.5 * width
         return a, True
 
-    def end(direction):
-        start.update(fit_others)
-        edge, at_bound = crossing(x_hat, direction)
+    def end(self, x_hat, direction):
+        """The interval's end on one side of ``x_hat``: (end, open at the bound)."""
+        p0 = self.p0
+        edge, at_bound = self.crossing(x_hat, direction)
         while not at_bound:
             # past the edge, does the misfit fall below the threshold again? (an emulator's
             # response can bump between two values the data allow alike): a scan to the
             # bound, and from the farthest value inside, the edge again
             bound = p0.upper if direction > 0 else p0.lower
             n = int(np.ceil(abs(bound - edge) / (PROFILE_SCAN_FRAC * (p0.upper - p0.lower))))
-            inside = [x for x in np.linspace(edge, bound, n + 1)[1:] if rise(float(x)) < 0]
+            inside = [x for x in np.linspace(edge, bound, n + 1)[1:] if self.rise(float(x)) < 0]
             if not inside:
                 break
-            edge, at_bound = crossing(float(inside[-1]), direction)
+            edge, at_bound = self.crossing(float(inside[-1]), direction)
         return edge, at_bound
-
-    lo, open_lo = end(-1.0) if x_hat > p0.lower else (p0.lower, True)
-    hi, open_hi = end(+1.0) if x_hat < p0.upper else (p0.upper, True)
-    return ProfileInterval(name, x_hat, lo, hi, level, thr, open_lo, open_hi)
-
 
 if __name__ == "__main__":
     # the plug-in command line (--model package.module:factory) is retired (2026-12-03): one
