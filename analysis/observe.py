@@ -308,6 +308,61 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
     -------
     ObservationResult
     """
+    t, x, y = _track_arrays(t_s, x_m, y_m, frame, jar_x_m, source)
+    fps = _checked_fps(t, fps, source)
+    valid, gap_fraction = _valid_frames(x, y, quality, max_gap_fraction, source)
+    if frequency_hz is None:
+        frequency_hz = estimate_frequency(t, np.where(valid, x, np.nan))
+    frequency_hz = float(frequency_hz)
+    if not frequency_hz > 0:
+        raise ObserveError(f"{source}: frequency_hz must be > 0, got {frequency_hz}")
+    n_half = fps / (2 * frequency_hz)
+    if n_half < 8:
+        raise ObserveError(f"{source}: {fps} frames/s gives only {n_half:.1f} frames between "
+                           f"impacts at {frequency_hz} Hz; need >= 8")
+    w = window_frames(fps, frequency_hz, polyorder) if window is None else int(window)
+    if w % 2 == 0 or w <= polyorder:
+        raise ObserveError(f"window must be odd and > polyorder, got {w}")
+    bridge = int(math.floor(n_half / 4))  # longest gap [frames] bridged for counting
+
+    # --- noise and dead band ----------------------------------------------------------------
+    sig_x = np.nanmedian([_noise_sigma(x[a:b]) for a, b in _runs(valid) if b - a > 10] or [0.0])
+    c = savgol_coeffs(w, polyorder)
+    k = np.convolve(c, [1.0, -1.0])
+    sig_vs = sig_x * fps * float(np.sqrt(np.sum(k ** 2)))
+    db = max(n_sigma * sig_vs, deadband_floor_m_s) if deadband_m_s is None else float(deadband_m_s)
+    if db < 0:
+        raise ObserveError(f"deadband_m_s must be >= 0, got {db}")
+
+    sw = _Sweep(t, x, y, valid, fps, w, polyorder, db, bridge,
+                sig_vraw=sig_x * fps * math.sqrt(2.0), kink_correction=kink_correction)
+    if not sw.runs or sw.duration <= 0:
+        raise TrackGapError(f"{source}: no stretch of consecutive frames long enough to measure")
+    n_valid_fd = int(np.sum(np.isfinite(sw.vxr)))
+    v_mean = sw.integral / sw.duration
+    # raw mean over the same time base as the smoothed one
+    v_mean_raw = sw.integral_raw / (n_valid_fd / fps)
+    ct = np.array(sorted(sw.coll_times))
+    f_col, f_col_se = collision_rate(sw.coll_times, sw.duration + sw.count_extra,
+                                     sw.coll_segments)
+    e_kin = 0.5 * mass_kg * v_mean ** 2 if mass_kg is not None else float("nan")
+    params = {"fps": fps, "frequency_hz": frequency_hz, "window_frames": w,
+              "polyorder": polyorder, "deadband_m_s": db, "noise_sigma_m": sig_x,
+              "frame": frame, "kink_correction": bool(kink_correction),
+              "mass_kg": float("nan") if mass_kg is None else float(mass_kg),
+              "bridge_frames": bridge, "max_gap_fraction": max_gap_fraction}
+    ratio = f_col / (2.0 * frequency_hz)
+    return ObservationResult(float(v_mean), float(v_mean_raw), float(e_kin), float(f_col),
+                             float(f_col_se), len(ct), ct, sw.tm, sw.vxs, sw.vys, sw.vxr,
+                             sw.vyr, float(sw.duration), float(gap_fraction), sw.n_kinks,
+                             float(sw.duration + sw.count_extra), params,
+                             f_col_ratio_2f=float(ratio),
+                             f_col_suspect=bool(not (F_COL_PLAUSIBLE_RATIO[0] <= ratio
+                                                     <= F_COL_PLAUSIBLE_RATIO[1])))
+
+
+def _track_arrays(t_s, x_m, y_m, frame, jar_x_m, source):
+    """(t, x, y) as float arrays of one length, x in the asked frame; at least 8 rows."""
     t = np.asarray(t_s, float)
     x = np.asarray(x_m, float).copy()
     y = np.asarray(y_m, float).copy()
@@ -322,6 +377,12 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
         x = x - np.asarray(jar_x_m, float)
     if n < 8:
         raise ObserveError(f"{source}: track has {n} rows; need at least 8 frames")
+    return t, x, y
+
+
+def _checked_fps(t, fps, source) -> float:
+    """The camera rate: ``fps`` (default 1 / the median frame spacing), checked against finite,
+    increasing, uniformly spaced times."""
     if not np.all(np.isfinite(t)):
         bad = int(np.flatnonzero(~np.isfinite(t))[0])
         raise ObserveError(f"{source}: row {bad}, column t_s: not a finite time")
@@ -342,6 +403,12 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
         bad = int(np.argmax(np.abs(dt * fps - 1))) + 1
         raise ObserveError(f"{source}: row {bad}, column t_s: frames not uniformly spaced "
                            f"(missing frames must be rows with NaN position, not skipped rows)")
+    return fps
+
+
+def _valid_frames(x, y, quality, max_gap_fraction, source):
+    """(the frames with a position and not marked lost, the fraction lost), within the
+    limit."""
     valid = np.isfinite(x) & np.isfinite(y)
     if quality is not None:
         q = np.asarray(quality).astype(str)
@@ -356,149 +423,131 @@ def observe_track(t_s, x_m, y_m, *, fps: float | None = None, frequency_hz: floa
         raise TrackGapError(f"{source}: {100 * gap_fraction:.1f} % of the frames are lost "
                             f"(limit {100 * max_gap_fraction:.0f} %); the track cannot give "
                             f"v_mean or f_col")
-    if frequency_hz is None:
-        frequency_hz = estimate_frequency(t, np.where(valid, x, np.nan))
-    frequency_hz = float(frequency_hz)
-    if not frequency_hz > 0:
-        raise ObserveError(f"{source}: frequency_hz must be > 0, got {frequency_hz}")
-    n_half = fps / (2 * frequency_hz)
-    if n_half < 8:
-        raise ObserveError(f"{source}: {fps} frames/s gives only {n_half:.1f} frames between "
-                           f"impacts at {frequency_hz} Hz; need >= 8")
-    w = window_frames(fps, frequency_hz, polyorder) if window is None else int(window)
-    if w % 2 == 0 or w <= polyorder:
-        raise ObserveError(f"window must be odd and > polyorder, got {w}")
-    bridge = int(math.floor(n_half / 4))  # longest gap [frames] bridged for counting
+    return valid, gap_fraction
 
-    # --- noise and dead band ----------------------------------------------------------------
-    sig_x = np.nanmedian([_noise_sigma(x[a:b]) for a, b in _runs(valid) if b - a > 10] or [0.0])
-    c = savgol_coeffs(w, polyorder)
-    k = np.convolve(c, [1.0, -1.0])
-    sig_vs = sig_x * fps * float(np.sqrt(np.sum(k ** 2)))
-    sig_vraw = sig_x * fps * math.sqrt(2.0)
-    db = max(n_sigma * sig_vs, deadband_floor_m_s) if deadband_m_s is None else float(deadband_m_s)
-    if db < 0:
-        raise ObserveError(f"deadband_m_s must be >= 0, got {db}")
 
-    # --- velocities per run -------------------------------------------------------------------
-    m = n - 1
-    tm = 0.5 * (t[1:] + t[:-1])
-    vxr = np.diff(x) * fps
-    vyr = np.diff(y) * fps
-    vpair = valid[1:] & valid[:-1]
-    vxr[~vpair] = np.nan
-    vyr[~vpair] = np.nan
-    vxs = np.full(m, np.nan)
-    vys = np.full(m, np.nan)
-    runs = [(a, b) for a, b in _runs(vpair) if b - a >= 3]
-    # group runs separated by short gaps (bridged for counting)
-    coll_times: list[float] = []
-    coll_segments: list[int] = []  # the bridged stretch each collision lies in
-    segment = -1
-    n_kinks = 0
-    duration = 0.0
-    integral = 0.0
-    integral_raw = 0.0
-    count_extra = 0.0  # bridged gap time: counted for f_col, not for v_mean
-    prev_state, prev_end_t, prev_end_idx = 0, None, None
-    for a, b in runs:
-        vx_run = _smooth(vxr[a:b], w, polyorder)
-        st = _hysteresis_states(vx_run, db)
+class _Sweep:
+    """One pass over a track's runs of consecutive frames: velocities (finite differences,
+    smoothed per run and per segment between kinks), the collisions (flips of the hysteresis
+    state, bridged over short gaps), the speed's integral and the time measured."""
+
+    def __init__(self, t, x, y, valid, fps, w, polyorder, db, bridge, *, sig_vraw,
+                 kink_correction):
+        self.fps, self.w, self.polyorder, self.db = fps, w, polyorder, db
+        self.sig_vraw, self.kink_correction = sig_vraw, kink_correction
+        m = len(t) - 1
+        self.tm = 0.5 * (t[1:] + t[:-1])
+        self.vxr = np.diff(x) * fps
+        self.vyr = np.diff(y) * fps
+        vpair = valid[1:] & valid[:-1]
+        self.vxr[~vpair] = np.nan
+        self.vyr[~vpair] = np.nan
+        self.vxs = np.full(m, np.nan)
+        self.vys = np.full(m, np.nan)
+        self.runs = [(a, b) for a, b in _runs(vpair) if b - a >= 3]
+        self.coll_times: list[float] = []
+        self.coll_segments: list[int] = []  # the bridged stretch each collision lies in
+        self.segment = -1
+        self.n_kinks = 0
+        self.duration = 0.0
+        self.integral = 0.0
+        self.integral_raw = 0.0
+        self.count_extra = 0.0  # bridged gap time: counted for f_col, not for v_mean
+        prev = (0, None, None)  # (state, end time, end index) of the last run
+        for a, b in self.runs:
+            prev = self._run(a, b, prev, bridge)
+
+    def _run(self, a, b, prev, bridge):
+        prev_state, prev_end_t, prev_end_idx = prev
+        tm, fps = self.tm, self.fps
+        vx_run = _smooth(self.vxr[a:b], self.w, self.polyorder)
+        st = _hysteresis_states(vx_run, self.db)
         # collisions inside this run: state flips
         flips = np.flatnonzero((st[1:] != st[:-1]) & (st[:-1] != 0)) + 1
         # bridging from the previous run
         gap_frames = None if prev_end_idx is None else a - prev_end_idx
         first_state = st[np.flatnonzero(st != 0)[0]] if np.any(st != 0) else 0
         if gap_frames is not None and gap_frames <= bridge:
-            count_extra += tm[a] - prev_end_t - 1.0 / fps
+            self.count_extra += tm[a] - prev_end_t - 1.0 / fps
             if prev_state != 0 and first_state != 0 and first_state != prev_state:
-                coll_times.append(0.5 * (prev_end_t + tm[a]))
-                coll_segments.append(segment)
+                self.coll_times.append(0.5 * (prev_end_t + tm[a]))
+                self.coll_segments.append(self.segment)
         else:
-            segment += 1
-        zc_idx = []  # zero-crossing FD index (left sample) per collision in the run
-        for fi in flips:
-            # last sample before fi whose smoothed vx has the old sign
-            old = st[fi - 1]
-            j = fi - 1
-            while j > 0 and np.sign(vx_run[j]) != old:
-                j -= 1
-            jj = j + 1
-            while jj < fi and np.sign(vx_run[jj]) == old:
-                jj += 1
-            j = jj - 1
-            v0, v1 = vx_run[j], vx_run[j + 1]
-            frac = v0 / (v0 - v1) if v0 != v1 else 0.5
-            coll_times.append(tm[a + j] + frac * (tm[a + j + 1] - tm[a + j]))
-            coll_segments.append(segment)
-            zc_idx.append(j)
-        # kink test and segment-wise smoothing
-        drop = np.zeros(b - a, bool)
-        if kink_correction:
-            raw = vxr[a:b]
-            for j in zc_idx:
-                L = np.arange(max(j - 6, 0), j - 1)
-                R = np.arange(j + 3, min(j + 9, b - a))
-                if len(L) < 3 or len(R) < 3:
-                    continue
-                idx = np.concatenate([L, np.arange(j - 1, j + 3), R])
-                idx = idx[(idx >= 0) & (idx < b - a)]
-                A1 = np.vstack([idx, np.ones(len(idx))]).T
-                res = raw[idx] - A1 @ np.linalg.lstsq(A1, raw[idx], rcond=None)[0]
-                rms_line = float(np.sqrt(np.mean(res ** 2)))
-                mL, mR = abs(np.mean(raw[L])), abs(np.mean(raw[R]))
-                jump = abs(np.mean(raw[R]) - np.mean(raw[L]))
-                # a kink: the velocity jumps (not linear through the turn) AND the ball is fast
-                # on both sides (a reversal). A jump to a near-stop (jar frame, small e: the
-                # relative speed drops to e*u, then turns smoothly) is left to the smoother:
-                # its |v| minimum is not at the impact, and interpolating over it overshoots.
-                if rms_line > max(4.0 * sig_vraw, 0.1 * jump) and \
-                        min(mL, mR) >= 0.3 * max(mL, mR):
-                    # locate the straddling difference: the sample nearest the sign change of raw
-                    win = np.arange(max(j - 2, 0), min(j + 4, b - a))
-                    kc = win[np.argmin(np.abs(raw[win]))]
-                    drop[max(kc - 1, 0):min(kc + 2, b - a)] = True
-                    n_kinks += 1
-        keep_runs = _runs(~drop)
+            self.segment += 1
+        zc_idx = [self._collision(a, vx_run, st, fi) for fi in flips]
+        drop = (self._kinks(self.vxr[a:b], zc_idx) if self.kink_correction
+                else np.zeros(b - a, bool))
+        self._integrate(a, b, drop)
+        last_state = st[np.flatnonzero(st != 0)[-1]] if np.any(st != 0) else prev_state
+        return last_state, tm[b - 1], b
+
+    def _collision(self, a, vx_run, st, fi) -> int:
+        """The collision at flip ``fi`` of a run from ``a``: its time (the smoothed vx's zero
+        crossing) recorded; the crossing's FD index (left sample) in the run returned."""
+        tm = self.tm
+        # last sample before fi whose smoothed vx has the old sign
+        old = st[fi - 1]
+        j = fi - 1
+        while j > 0 and np.sign(vx_run[j]) != old:
+            j -= 1
+        jj = j + 1
+        while jj < fi and np.sign(vx_run[jj]) == old:
+            jj += 1
+        j = jj - 1
+        v0, v1 = vx_run[j], vx_run[j + 1]
+        frac = v0 / (v0 - v1) if v0 != v1 else 0.5
+        self.coll_times.append(tm[a + j] + frac * (tm[a + j + 1] - tm[a + j]))
+        self.coll_segments.append(self.segment)
+        return j
+
+    def _kinks(self, raw, zc_idx) -> np.ndarray:
+        """The run's samples to drop around sharp impacts (a kink test at each zero
+        crossing)."""
+        n = len(raw)
+        drop = np.zeros(n, bool)
+        for j in zc_idx:
+            L = np.arange(max(j - 6, 0), j - 1)
+            R = np.arange(j + 3, min(j + 9, n))
+            if len(L) < 3 or len(R) < 3:
+                continue
+            idx = np.concatenate([L, np.arange(j - 1, j + 3), R])
+            idx = idx[(idx >= 0) & (idx < n)]
+            A1 = np.vstack([idx, np.ones(len(idx))]).T
+            res = raw[idx] - A1 @ np.linalg.lstsq(A1, raw[idx], rcond=None)[0]
+            rms_line = float(np.sqrt(np.mean(res ** 2)))
+            mL, mR = abs(np.mean(raw[L])), abs(np.mean(raw[R]))
+            jump = abs(np.mean(raw[R]) - np.mean(raw[L]))
+            # a kink: the velocity jumps (not linear through the turn) AND the ball is fast
+            # on both sides (a reversal). A jump to a near-stop (jar frame, small e: the
+            # relative speed drops to e*u, then turns smoothly) is left to the smoother:
+            # its |v| minimum is not at the impact, and interpolating over it overshoots.
+            if rms_line > max(4.0 * self.sig_vraw, 0.1 * jump) and \
+                    min(mL, mR) >= 0.3 * max(mL, mR):
+                # locate the straddling difference: the sample nearest the sign change of raw
+                win = np.arange(max(j - 2, 0), min(j + 4, n))
+                kc = win[np.argmin(np.abs(raw[win]))]
+                drop[max(kc - 1, 0):min(kc + 2, n)] = True
+                self.n_kinks += 1
+        return drop
+
+    def _integrate(self, a, b, drop):
+        """Segment-wise smoothing between the dropped samples; the speed's integral over the
+        kept ones and the run's time."""
+        fps, tm, w, p = self.fps, self.tm, self.w, self.polyorder
         vx_seg = np.full(b - a, np.nan)
         vy_seg = np.full(b - a, np.nan)
-        for sa, sb in keep_runs:
-            vx_seg[sa:sb] = _smooth(vxr[a + sa:a + sb], w, polyorder)
-            vy_seg[sa:sb] = _smooth(vyr[a + sa:a + sb], w, polyorder)
-        vxs[a:b] = vx_seg
-        vys[a:b] = vy_seg
+        for sa, sb in _runs(~drop):
+            vx_seg[sa:sb] = _smooth(self.vxr[a + sa:a + sb], w, p)
+            vy_seg[sa:sb] = _smooth(self.vyr[a + sa:a + sb], w, p)
+        self.vxs[a:b] = vx_seg
+        self.vys[a:b] = vy_seg
         keep = ~drop
         sp = np.hypot(vx_seg[keep], vy_seg[keep])
         tk = tm[a:b][keep]
         # trapezoid over kept samples, plus half a frame at each end of the run
-        integral += np.trapezoid(sp, tk) + 0.5 / fps * (sp[0] + sp[-1])
-        integral_raw += np.sum(np.hypot(vxr[a:b], vyr[a:b])) / fps
-        duration += (tm[b - 1] - tm[a]) + 1.0 / fps
-        last_state = st[np.flatnonzero(st != 0)[-1]] if np.any(st != 0) else prev_state
-        prev_state, prev_end_t, prev_end_idx = last_state, tm[b - 1], b
-    if not runs or duration <= 0:
-        raise TrackGapError(f"{source}: no stretch of consecutive frames long enough to measure")
-    n_valid_fd = int(np.sum(np.isfinite(vxr)))
-    v_mean = integral / duration
-    # raw mean over the same time base as the smoothed one
-    v_mean_raw = integral_raw / (n_valid_fd / fps)
-    ct = np.array(sorted(coll_times))
-    n_col = len(ct)
-    f_col, f_col_se = collision_rate(coll_times, duration + count_extra, coll_segments)
-    e_kin = 0.5 * mass_kg * v_mean ** 2 if mass_kg is not None else float("nan")
-    params = {"fps": fps, "frequency_hz": frequency_hz, "window_frames": w,
-              "polyorder": polyorder, "deadband_m_s": db, "noise_sigma_m": sig_x,
-              "frame": frame, "kink_correction": bool(kink_correction),
-              "mass_kg": float("nan") if mass_kg is None else float(mass_kg),
-              "bridge_frames": bridge, "max_gap_fraction": max_gap_fraction}
-    ratio = f_col / (2.0 * frequency_hz)
-    return ObservationResult(float(v_mean), float(v_mean_raw), float(e_kin), float(f_col),
-                             float(f_col_se), n_col, ct, tm, vxs, vys, vxr, vyr, float(duration),
-                             float(gap_fraction), n_kinks,
-                             float(duration + count_extra), params,
-                             f_col_ratio_2f=float(ratio),
-                             f_col_suspect=bool(not (F_COL_PLAUSIBLE_RATIO[0] <= ratio
-                                                     <= F_COL_PLAUSIBLE_RATIO[1])))
+        self.integral += np.trapezoid(sp, tk) + 0.5 / fps * (sp[0] + sp[-1])
+        self.integral_raw += np.sum(np.hypot(self.vxr[a:b], self.vyr[a:b])) / fps
+        self.duration += (tm[b - 1] - tm[a]) + 1.0 / fps
 
 
 # --------------------------------------------------------------------------------------------
