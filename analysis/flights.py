@@ -182,69 +182,11 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     -------
     FlightResult
     """
-    t = np.asarray(t_s, float)
-    x = np.asarray(x_m, float)
-    y = np.asarray(y_m, float)
-    jx = np.asarray(jar_x_m, float)
-    n = len(t)
-    if not (len(x) == len(y) == len(jx) == n):
-        raise FlightError(f"{source}: t_s, x_m, y_m, jar_x_m differ in length")
-    if not np.all(np.isfinite(t)):
-        raise FlightError(f"{source}: column t_s has NaN at row "
-                          f"{int(np.flatnonzero(~np.isfinite(t))[0])} (every frame needs its time)")
-    # gaps: frames where the ball (x_m, y_m) or the jar (jar_x_m) was not found (NaN); an
-    # impact whose fit windows touch a gap is left out, the jar is fitted on its found frames
-    ok_j = np.isfinite(jx)
-    ok = np.isfinite(x) & np.isfinite(y) & ok_j
-    gap_fraction = 1.0 - float(ok.mean()) if n else 0.0
-    if gap_fraction > MAX_GAP_FRACTION:
-        raise FlightError(f"{source}: {100 * gap_fraction:.1f} % of the frames are gaps (NaN in "
-                          f"x_m, y_m or jar_x_m; limit {100 * MAX_GAP_FRACTION:.0f} %)")
-    if not (frequency_hz is not None and np.isfinite(frequency_hz) and frequency_hz > 0):
-        raise FlightError(f"{source}: frequency_hz must be > 0, got {frequency_hz}")
-    if skip < 0 or n_fit < 3:
-        raise FlightError(f"{source}: need skip >= 0 and n_fit >= 3")
-    dt = np.diff(t)
-    if n < 8 or np.any(dt <= 0):
-        raise FlightError(f"{source}: need >= 8 frames at increasing times")
+    t, x, y, jx = _checked_flight_track(t_s, x_m, y_m, jar_x_m, frequency_hz, skip, n_fit,
+                                        source)
     w = 2 * math.pi * float(frequency_hz)
-    if (t[-1] - t[0]) * frequency_hz < 2:
-        raise FlightError(f"{source}: the track spans less than two jar cycles")
-
-    # jar fundamental
-    A = np.column_stack([np.cos(w * t), np.sin(w * t), np.ones(n)])
-    coef = np.linalg.lstsq(A[ok_j], jx[ok_j], rcond=None)[0]
-    ca, cb = float(coef[0]), float(coef[1])
-    amp = math.hypot(ca, cb)
-    if amp <= 0:
-        raise FlightError(f"{source}: the jar does not move (jar_x_m constant)")
-    # jar_x ~ amp sin(w t + phi0): phi0 = atan2(ca, cb)
-    phi0 = math.atan2(ca, cb)
-
-    r = x - jx
-    q_lo, q_hi = np.nanquantile(r, [0.02, 0.98])
-    travel = q_hi - q_lo
-    if not travel > 1e-3:
-        raise FlightError(f"{source}: the ball moves {travel * 1e3:.3g} mm relative to the jar "
-                          "(< 1 mm): no end-to-end flight")
-    vis = _visits(r, q_lo + end_band * travel, q_hi - end_band * travel)
-    rows = []
-    for k, end, a, b in vis:
-        bs = slice(k - skip - n_fit, k - skip)
-        as_ = slice(k + skip + 1, k + skip + 1 + n_fit)
-        if bs.start < 0 or as_.stop > n or not ok[bs.start:as_.stop].all():
-            continue
-        tc = _contact_time(t, x, jx, bs, as_, k, skip)
-        u_b = _fit_at(t, x, bs, tc, 1)
-        u_a = _fit_at(t, x, as_, tc, 1)
-        V_b = _jar_velocity_at(t, jx, bs, tc, w)
-        V_a = _jar_velocity_at(t, jx, as_, tc, w)
-        v_in = end * (u_b - V_b)
-        v_out = -end * (u_a - V_a)
-        t0 = tc
-        ph = (w * t0 + phi0 + (math.pi if end < 0 else 0.0)) % (2 * math.pi)
-        rows.append((t0, end, v_in, v_out, v_out / v_in if v_in > 0 else np.nan, ph))
-    imp = pd.DataFrame(rows, columns=list(IMPACT_TABLE_COLUMNS))
+    jar = _JarFundamental.fit(t, jx, w, source)
+    imp = _impact_table(t, x, y, jx, w, jar.phi0, skip, n_fit, end_band, source)
     fast = imp["v_in_m_s"] > max(v_in_min_m_s, 0.3 * float(np.nanmedian(imp["v_in_m_s"]))
                                  if len(imp) else v_in_min_m_s)
     good = imp[fast & np.isfinite(imp["e"])]
@@ -261,28 +203,9 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     R = abs(zm)
     r2 = float(np.mean(np.cos(2 * (np.angle(z) - phase))))
     phase_se = math.sqrt(max(1e-12, (1 - r2) / (2 * ng * max(R, 1e-6) ** 2)))
-    # vertical velocity: Savitzky-Golay derivative (7 frames, order 2: a motion at 2f = 50 Hz
-    # reads 1.4 % low, at 60 Hz 2 %, on both sides alike); the tracking noise's
-    # share of the mean square (noise sd from the track's third differences) is taken out, so
-    # a clean twin track and a noisy measured one read the same motion
-    # (over each gap-free run of 7 frames or more; one run without gaps)
-    fin = np.isfinite(y)
-    edges = np.flatnonzero(np.diff(np.r_[0, fin.astype(int), 0]))
-    vy = np.concatenate([savgol_filter(y[a:b], 7, 2, deriv=1, delta=float(np.median(dt)))
-                         for a, b in zip(edges[::2], edges[1::2]) if b - a >= 7] or [np.zeros(0)])
-    if len(vy) < 8:
-        raise FlightError(f"{source}: fewer than 8 frames in gap-free runs of 7 or more")
-    gain2 = float(np.sum(savgol_coeffs(7, 2, deriv=1, delta=float(np.median(dt))) ** 2))
-    noise_var = _noise_sd(y) ** 2 * gain2
-    blocks = np.array_split(vy, 8)
-    vy_rms = math.sqrt(max(0.0, float(np.mean(vy ** 2)) - noise_var))
-    blk = np.array([math.sqrt(max(0.0, float(np.mean(b ** 2)) - noise_var)) for b in blocks])
-    # amplitude se from the fit residual
-    res = jx[ok_j] - A[ok_j] @ coef
-    nj = int(ok_j.sum())
-    amp_se = float(np.sqrt(np.sum(res ** 2) / max(1, nj - 3)) * math.sqrt(2.0 / nj))
+    vy_rms, vy_rms_se = _vy_rms(t, y, source)
     values = {"e_app": float(np.median(e)), "v_in_m_s": float(np.median(vin)),
-              "impact_phase_rad": phase, "jar_amplitude_m": float(amp),
+              "impact_phase_rad": phase, "jar_amplitude_m": float(jar.amp),
               "vy_rms_m_s": vy_rms}
     ends = good["end"].to_numpy()
     if min(np.sum(ends > 0), np.sum(ends < 0)) >= 3:
@@ -295,9 +218,114 @@ def flight_observables(t_s, x_m, y_m, jar_x_m, frequency_hz, *, skip=2, n_fit=6,
     else:
         e_se, vin_se = _median_se(e), _median_se(vin)
     se = {"e_app": e_se, "v_in_m_s": vin_se,
-          "impact_phase_rad": phase_se, "jar_amplitude_m": amp_se,
-          "vy_rms_m_s": float(blk.std(ddof=1) / math.sqrt(len(blk)))}
+          "impact_phase_rad": phase_se, "jar_amplitude_m": jar.amp_se,
+          "vy_rms_m_s": vy_rms_se}
     return FlightResult(values, se, imp)
+
+
+def _checked_flight_track(t_s, x_m, y_m, jar_x_m, frequency_hz, skip, n_fit, source):
+    """(t, x, y, jar_x) as float arrays, checked: one length, finite times increasing over
+    two jar cycles or more, gaps within :data:`MAX_GAP_FRACTION`, sane options."""
+    t = np.asarray(t_s, float)
+    x = np.asarray(x_m, float)
+    y = np.asarray(y_m, float)
+    jx = np.asarray(jar_x_m, float)
+    n = len(t)
+    if not (len(x) == len(y) == len(jx) == n):
+        raise FlightError(f"{source}: t_s, x_m, y_m, jar_x_m differ in length")
+    if not np.all(np.isfinite(t)):
+        raise FlightError(f"{source}: column t_s has NaN at row "
+                          f"{int(np.flatnonzero(~np.isfinite(t))[0])} (every frame needs its time)")
+    # gaps: frames where the ball (x_m, y_m) or the jar (jar_x_m) was not found (NaN); an
+    # impact whose fit windows touch a gap is left out, the jar is fitted on its found frames
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(jx)
+    gap_fraction = 1.0 - float(ok.mean()) if n else 0.0
+    if gap_fraction > MAX_GAP_FRACTION:
+        raise FlightError(f"{source}: {100 * gap_fraction:.1f} % of the frames are gaps (NaN in "
+                          f"x_m, y_m or jar_x_m; limit {100 * MAX_GAP_FRACTION:.0f} %)")
+    if not (frequency_hz is not None and np.isfinite(frequency_hz) and frequency_hz > 0):
+        raise FlightError(f"{source}: frequency_hz must be > 0, got {frequency_hz}")
+    if skip < 0 or n_fit < 3:
+        raise FlightError(f"{source}: need skip >= 0 and n_fit >= 3")
+    if n < 8 or np.any(np.diff(t) <= 0):
+        raise FlightError(f"{source}: need >= 8 frames at increasing times")
+    if (t[-1] - t[0]) * frequency_hz < 2:
+        raise FlightError(f"{source}: the track spans less than two jar cycles")
+    return t, x, y, jx
+
+
+@dataclass(frozen=True)
+class _JarFundamental:
+    """The jar's motion at the drive's frequency, fitted on its found frames:
+    jar_x ~ amp sin(w t + phi0) + const; amp's se from the fit's residual."""
+    amp: float
+    phi0: float
+    amp_se: float
+
+    @classmethod
+    def fit(cls, t, jx, w, source):
+        ok_j = np.isfinite(jx)
+        A = np.column_stack([np.cos(w * t), np.sin(w * t), np.ones(len(t))])
+        coef = np.linalg.lstsq(A[ok_j], jx[ok_j], rcond=None)[0]
+        ca, cb = float(coef[0]), float(coef[1])
+        amp = math.hypot(ca, cb)
+        if amp <= 0:
+            raise FlightError(f"{source}: the jar does not move (jar_x_m constant)")
+        res = jx[ok_j] - A[ok_j] @ coef
+        nj = int(ok_j.sum())
+        amp_se = float(np.sqrt(np.sum(res ** 2) / max(1, nj - 3)) * math.sqrt(2.0 / nj))
+        return cls(amp, math.atan2(ca, cb), amp_se)
+
+
+def _impact_table(t, x, y, jx, w, phi0, skip, n_fit, end_band, source) -> pd.DataFrame:
+    """One row per end impact whose fit windows are gap-free (:data:`IMPACT_TABLE_COLUMNS`):
+    its contact time, end, approach and rebound speeds relative to the jar, their ratio and
+    the jar's phase at contact."""
+    n = len(t)
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(jx)
+    r = x - jx
+    q_lo, q_hi = np.nanquantile(r, [0.02, 0.98])
+    travel = q_hi - q_lo
+    if not travel > 1e-3:
+        raise FlightError(f"{source}: the ball moves {travel * 1e3:.3g} mm relative to the jar "
+                          "(< 1 mm): no end-to-end flight")
+    rows = []
+    for k, end, a, b in _visits(r, q_lo + end_band * travel, q_hi - end_band * travel):
+        bs = slice(k - skip - n_fit, k - skip)
+        as_ = slice(k + skip + 1, k + skip + 1 + n_fit)
+        if bs.start < 0 or as_.stop > n or not ok[bs.start:as_.stop].all():
+            continue
+        tc = _contact_time(t, x, jx, bs, as_, k, skip)
+        u_b = _fit_at(t, x, bs, tc, 1)
+        u_a = _fit_at(t, x, as_, tc, 1)
+        V_b = _jar_velocity_at(t, jx, bs, tc, w)
+        V_a = _jar_velocity_at(t, jx, as_, tc, w)
+        v_in = end * (u_b - V_b)
+        v_out = -end * (u_a - V_a)
+        ph = (w * tc + phi0 + (math.pi if end < 0 else 0.0)) % (2 * math.pi)
+        rows.append((tc, end, v_in, v_out, v_out / v_in if v_in > 0 else np.nan, ph))
+    return pd.DataFrame(rows, columns=list(IMPACT_TABLE_COLUMNS))
+
+
+def _vy_rms(t, y, source):
+    """(rms of the vertical velocity, its se over 8 blocks): a Savitzky-Golay derivative (7
+    frames, order 2: a motion at 2f = 50 Hz reads 1.4 % low, at 60 Hz 2 %, on both sides
+    alike) over each gap-free run of 7 frames or more; the tracking noise's share of the mean
+    square (noise sd from the track's third differences) taken out, so a clean twin track and
+    a noisy measured one read the same motion."""
+    dt = float(np.median(np.diff(t)))
+    fin = np.isfinite(y)
+    edges = np.flatnonzero(np.diff(np.r_[0, fin.astype(int), 0]))
+    vy = np.concatenate([savgol_filter(y[a:b], 7, 2, deriv=1, delta=dt)
+                         for a, b in zip(edges[::2], edges[1::2]) if b - a >= 7] or [np.zeros(0)])
+    if len(vy) < 8:
+        raise FlightError(f"{source}: fewer than 8 frames in gap-free runs of 7 or more")
+    gain2 = float(np.sum(savgol_coeffs(7, 2, deriv=1, delta=dt) ** 2))
+    noise_var = _noise_sd(y) ** 2 * gain2
+    vy_rms = math.sqrt(max(0.0, float(np.mean(vy ** 2)) - noise_var))
+    blk = np.array([math.sqrt(max(0.0, float(np.mean(b ** 2)) - noise_var))
+                    for b in np.array_split(vy, 8)])
+    return vy_rms, float(blk.std(ddof=1) / math.sqrt(len(blk)))
 
 
 def flight_observables_frame(track: pd.DataFrame, frequency_hz, **kwargs) -> FlightResult:
