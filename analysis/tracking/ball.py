@@ -634,163 +634,209 @@ def track_frames(frames, fps: float, *, ball_diameter_m: float | None = None,
     if r_exp is None and m_per_px is not None and ball_diameter_m is not None:
         r_exp = 0.5 * ball_diameter_m / m_per_px
     t_start = time.perf_counter()
-    xs_px, ys_px, rs_px, qual = [], [], [], []
-    vr_list = []
-    mosse = None
-    prev = None  # (x, y) of the last valid frame
-    vel = (0.0, 0.0)
-    n_since_init = 0
-    H = W = None
-    n = 0
-    level = None
-    band = None  # the 'band' rim geometry, built once the radius and frame width are known
+    tr = _BallTracker(st, r_exp)
     for gray in frames:
-        n += 1
-        if H is None:
-            H, W = gray.shape
-        if band is None and st.rim_method == "band" and r_exp is not None:
-            band = BandRim(r_exp, W, st.rim_step, st.rim_span)
-            band_fine = BandRim(r_exp, W, 1, st.rim_span)  # for the scale frames
-        q = "ok"
-        res = None
-        if prev is None:
-            # (re)acquire with the detector on the whole frame
-            rmin = 0.7 * r_exp if r_exp else 6
-            rmax = 1.3 * r_exp if r_exp else min(H, W) / 2
-            det = detect_ball(gray, rmin, rmax)
-            if det is not None:
-                if r_exp is None:
-                    r_exp = det[2]
-                res = refine_centre(gray, det[0], det[1], r_exp, st.search_margin, st.min_points)
-                if res is not None and abs(res[2] / r_exp - 1) > st.radius_tol:
-                    res = None
-                if res is not None:
-                    q = "reacquired" if xs_px else "ok"
-                    mosse = _new_mosse(gray, res[0], res[1], r_exp)
-                    n_since_init = 0
-        else:
-            px, py = prev[0] + vel[0], prev[1] + vel[1]
-            run_m = mosse is not None and n % st.mosse_every == 0
-            ok_m, bb = mosse.update(gray) if run_m else (False, None)
-            m_xy = (bb[0] + bb[2] / 2, bb[1] + bb[3] / 2) if ok_m else None
-            scale_phase = len(vr_list) < st.scale_frames
-            use_level = None if (scale_phase or level is None or n % st.level_every == 0) \
-                else level
-            # rim fit around the constant-velocity prediction (sub-pixel velocity from the last
-            # two fits: within a few px even at an impact); then around MOSSE's box if it
-            # agrees with the prediction; a fit must lie within 0.5 r of the prediction
-            guesses = [(px, py)]
-            if m_xy is not None and math.hypot(m_xy[0] - px, m_xy[1] - py) <= \
-                    st.drift_tol * r_exp + math.hypot(*vel):
-                guesses.append(m_xy)
-            for gx, gy in guesses:
-                res = None
-                lv = use_level
-                if band is not None and scale_phase:
-                    # every row and column, the level of refine_centre's window: the same rim
-                    # points as its scan (the diameter, hence the scale, depends on the level)
-                    res = band_fine.refine(gray, gx, gy,
-                                           window_level(gray, gx, gy, r_exp, st.track_margin),
-                                           st.min_points, n_iter=3)
-                elif band is not None:
-                    res = band.refine(gray, gx, gy, lv, st.min_points, n_iter=2, rim=False)
-                    if res is None and band.reach_ok(gray, gx, gy):
-                        lv = None  # profiles inside the frame but no circle: fresh level
-                if res is None:
-                    res = refine_centre(gray, gx, gy, r_exp, st.track_margin,
-                                        st.min_points, level=lv,
-                                        step=1 if scale_phase else st.rim_step,
-                                        n_iter=3 if scale_phase else 2,
-                                        method="crossings" if scale_phase or band is not None
-                                        else st.rim_method)
-                if res is None and lv is not None:  # lighting changed: fresh level
-                    res = refine_centre(gray, gx, gy, r_exp, st.search_margin, st.min_points)
-                if res is not None and (abs(res[2] / r_exp - 1) > st.radius_tol or
-                                        math.hypot(res[0] - px, res[1] - py) > 0.5 * r_exp):
-                    res = None
-                if res is not None:
-                    break
-            if res is None:
-                # no valid rim around the prediction nor around MOSSE's box: detector near the
-                # prediction, then on the whole frame
-                h = int(3 * r_exp)
-                det = detect_ball(gray, 0.8 * r_exp, 1.2 * r_exp,
-                                  (px - h, py - h, px + h + 1, py + h + 1))
-                if det is None:
-                    det = detect_ball(gray, 0.8 * r_exp, 1.2 * r_exp)
-                if det is not None:
-                    res = refine_centre(gray, det[0], det[1], r_exp, st.search_margin,
-                                        st.min_points)
-                    if res is not None and abs(res[2] / r_exp - 1) > st.radius_tol:
-                        res = None
-                if res is not None:
-                    q = "reacquired"
-                    mosse = _new_mosse(gray, res[0], res[1], r_exp)
-                    n_since_init = 0
-            elif run_m and n_since_init >= 25 and (
-                    m_xy is None or
-                    math.hypot(m_xy[0] - res[0], m_xy[1] - res[1]) > st.drift_tol * r_exp):
-                # MOSSE lost it (low PSR) or drifted but the refinement held: re-anchor MOSSE
-                # (at most every 25 frames: an init costs ~9 updates)
-                mosse = _new_mosse(gray, res[0], res[1], r_exp)
-                n_since_init = 0
-        if res is None:
-            xs_px.append(np.nan)
-            ys_px.append(np.nan)
-            rs_px.append(np.nan)
-            qual.append("lost")
-            if prev is not None and len(qual) >= 2 and qual[-2] == "lost":
-                pass
-            # keep predicting for a few frames, then fall back to whole-frame detection
-            lost_run = 0
-            for qq in reversed(qual):
-                if qq != "lost":
-                    break
-                lost_run += 1
-            if lost_run > 3:
-                prev = None
-            continue
-        xc, yc, r = res[0], res[1], res[2]
-        level = res[5]
-        if prev is not None and qual and qual[-1] != "lost":
-            vel = (xc - prev[0], yc - prev[1])
-        else:
-            vel = (0.0, 0.0)
-        prev = (xc, yc)
-        xs_px.append(xc)
-        ys_px.append(yc)
-        rs_px.append(r)
-        qual.append(q)
-        if len(vr_list) < st.scale_frames:
-            vr_list.append(_vertical_radius(res[4], xc, r))
-        n_since_init += 1
-        if n_since_init >= st.reinit_every:
-            mosse = _new_mosse(gray, xc, yc, r_exp)
-            n_since_init = 0
+        tr.feed(gray)
+    n = tr.n
     if n == 0:
         raise VideoReadError(f"{source}: no decodable frame (empty or corrupt video)")
-    qual = np.array(qual)
+    qual = np.array(tr.qual)
     if np.all(qual == "lost"):
         raise BallNotFoundError(f"{source}: the ball was never found in {n} frames")
     n_lost = int(np.sum(qual == "lost"))
     if n_lost / n > st.max_lost_frac:
         raise TrackingError(f"{source}: ball lost in {n_lost} of {n} frames "
                             f"(> {100 * st.max_lost_frac:.0f} %); no usable track")
-    vr = np.array(vr_list, float)
+    vr = np.array(tr.vr_list, float)
+    rs_px = tr.rs_px
     d_px = 2 * float(np.nanmedian(vr)) if np.isfinite(vr).any() else 2 * float(np.nanmedian(rs_px))
     if m_per_px is not None:
         scale, src = float(m_per_px), "given"
     else:
         scale, src = ball_diameter_m / d_px, "ball_diameter"
-    xs_px = np.array(xs_px)
-    ys_px = np.array(ys_px)
+    xs_px = np.array(tr.xs_px)
+    ys_px = np.array(tr.ys_px)
     t = np.arange(n) / fps
-    df = pd.DataFrame({"t_s": t, "x_m": xs_px * scale, "y_m": (H - 1 - ys_px) * scale,
+    df = pd.DataFrame({"t_s": t, "x_m": xs_px * scale, "y_m": (tr.H - 1 - ys_px) * scale,
                        "quality": qual, "x_px": xs_px, "y_px": ys_px, "r_px": rs_px})
     wall = time.perf_counter() - t_start
     return TrackResult(df, scale, src, d_px, float(fps), n, n_lost,
                        int(np.sum(qual == "reacquired")), wall,
-                       {"r_expected_px": r_exp, **st.__dict__})
+                       {"r_expected_px": tr.r_exp, **st.__dict__})
+
+
+class _BallTracker:
+    """The tracker's state over the frames fed to it in turn: the ball's pixel track and
+    quality per frame, the vertical radii of the scale frames, the MOSSE tracker and the
+    constant-velocity prediction from the last two fits."""
+
+    def __init__(self, st: TrackerSettings, r_exp):
+        self.st, self.r_exp = st, r_exp
+        self.xs_px, self.ys_px, self.rs_px, self.qual = [], [], [], []
+        self.vr_list = []
+        self.mosse = None
+        self.prev = None  # (x, y) of the last valid frame
+        self.vel = (0.0, 0.0)
+        self.n_since_init = 0
+        self.H = self.W = None
+        self.n = 0
+        self.level = None
+        self.band = None  # the 'band' rim geometry, built once the radius and width are known
+        self.band_fine = None
+
+    def feed(self, gray):
+        """One frame: the ball found (around the prediction, else by the detector) or lost."""
+        st = self.st
+        self.n += 1
+        if self.H is None:
+            self.H, self.W = gray.shape
+        if self.band is None and st.rim_method == "band" and self.r_exp is not None:
+            self.band = BandRim(self.r_exp, self.W, st.rim_step, st.rim_span)
+            self.band_fine = BandRim(self.r_exp, self.W, 1, st.rim_span)  # for the scale frames
+        res, q = self._acquire(gray) if self.prev is None else self._follow(gray)
+        if res is None:
+            self._lose()
+        else:
+            self._keep(gray, res, q)
+
+    def _reset_mosse(self, gray, x, y):
+        self.mosse = _new_mosse(gray, x, y, self.r_exp)
+        self.n_since_init = 0
+
+    def _acquire(self, gray):
+        """(Re)acquire with the detector on the whole frame: (fit or None, quality)."""
+        st, H, W = self.st, self.H, self.W
+        rmin = 0.7 * self.r_exp if self.r_exp else 6
+        rmax = 1.3 * self.r_exp if self.r_exp else min(H, W) / 2
+        det = detect_ball(gray, rmin, rmax)
+        q, res = "ok", None
+        if det is not None:
+            if self.r_exp is None:
+                self.r_exp = det[2]
+            res = refine_centre(gray, det[0], det[1], self.r_exp, st.search_margin,
+                                st.min_points)
+            if res is not None and abs(res[2] / self.r_exp - 1) > st.radius_tol:
+                res = None
+            if res is not None:
+                q = "reacquired" if self.xs_px else "ok"
+                self._reset_mosse(gray, res[0], res[1])
+        return res, q
+
+    def _follow(self, gray):
+        """The ball near its prediction: the rim fit, else the detector; MOSSE re-anchored
+        where it lost or drifted from the fit."""
+        st, r_exp, vel = self.st, self.r_exp, self.vel
+        px, py = self.prev[0] + vel[0], self.prev[1] + vel[1]
+        run_m = self.mosse is not None and self.n % st.mosse_every == 0
+        ok_m, bb = self.mosse.update(gray) if run_m else (False, None)
+        m_xy = (bb[0] + bb[2] / 2, bb[1] + bb[3] / 2) if ok_m else None
+        # rim fit around the constant-velocity prediction (sub-pixel velocity from the last
+        # two fits: within a few px even at an impact); then around MOSSE's box if it
+        # agrees with the prediction; a fit must lie within 0.5 r of the prediction
+        guesses = [(px, py)]
+        if m_xy is not None and math.hypot(m_xy[0] - px, m_xy[1] - py) <= \
+                st.drift_tol * r_exp + math.hypot(*vel):
+            guesses.append(m_xy)
+        res = self._rim_fit(gray, guesses, px, py)
+        q = "ok"
+        if res is None:
+            res = self._detect_near(gray, px, py)
+            if res is not None:
+                q = "reacquired"
+                self._reset_mosse(gray, res[0], res[1])
+        elif run_m and self.n_since_init >= 25 and (
+                m_xy is None or
+                math.hypot(m_xy[0] - res[0], m_xy[1] - res[1]) > st.drift_tol * r_exp):
+            # MOSSE lost it (low PSR) or drifted but the refinement held: re-anchor MOSSE
+            # (at most every 25 frames: an init costs ~9 updates)
+            self._reset_mosse(gray, res[0], res[1])
+        return res, q
+
+    def _rim_fit(self, gray, guesses, px, py):
+        """The first rim fit around ``guesses`` of the right radius within 0.5 r of the
+        prediction (px, py), or None."""
+        st, r_exp, band = self.st, self.r_exp, self.band
+        scale_phase = len(self.vr_list) < st.scale_frames
+        use_level = None if (scale_phase or self.level is None
+                             or self.n % st.level_every == 0) else self.level
+        res = None
+        for gx, gy in guesses:
+            res = None
+            lv = use_level
+            if band is not None and scale_phase:
+                # every row and column, the level of refine_centre's window: the same rim
+                # points as its scan (the diameter, hence the scale, depends on the level)
+                res = self.band_fine.refine(gray, gx, gy,
+                                            window_level(gray, gx, gy, r_exp, st.track_margin),
+                                            st.min_points, n_iter=3)
+            elif band is not None:
+                res = band.refine(gray, gx, gy, lv, st.min_points, n_iter=2, rim=False)
+                if res is None and band.reach_ok(gray, gx, gy):
+                    lv = None  # profiles inside the frame but no circle: fresh level
+            if res is None:
+                res = refine_centre(gray, gx, gy, r_exp, st.track_margin,
+                                    st.min_points, level=lv,
+                                    step=1 if scale_phase else st.rim_step,
+                                    n_iter=3 if scale_phase else 2,
+                                    method="crossings" if scale_phase or band is not None
+                                    else st.rim_method)
+            if res is None and lv is not None:  # lighting changed: fresh level
+                res = refine_centre(gray, gx, gy, r_exp, st.search_margin, st.min_points)
+            if res is not None and (abs(res[2] / r_exp - 1) > st.radius_tol or
+                                    math.hypot(res[0] - px, res[1] - py) > 0.5 * r_exp):
+                res = None
+            if res is not None:
+                break
+        return res
+
+    def _detect_near(self, gray, px, py):
+        """No valid rim around the prediction nor around MOSSE's box: the detector near the
+        prediction, then on the whole frame; its refined fit of the right radius or None."""
+        st, r_exp = self.st, self.r_exp
+        h = int(3 * r_exp)
+        det = detect_ball(gray, 0.8 * r_exp, 1.2 * r_exp, (px - h, py - h, px + h + 1, py + h + 1))
+        if det is None:
+            det = detect_ball(gray, 0.8 * r_exp, 1.2 * r_exp)
+        res = None
+        if det is not None:
+            res = refine_centre(gray, det[0], det[1], r_exp, st.search_margin, st.min_points)
+            if res is not None and abs(res[2] / r_exp - 1) > st.radius_tol:
+                res = None
+        return res
+
+    def _lose(self):
+        """A lost frame: keep predicting for a few frames, then fall back to whole-frame
+        detection."""
+        self.xs_px.append(np.nan)
+        self.ys_px.append(np.nan)
+        self.rs_px.append(np.nan)
+        self.qual.append("lost")
+        lost_run = 0
+        for qq in reversed(self.qual):
+            if qq != "lost":
+                break
+            lost_run += 1
+        if lost_run > 3:
+            self.prev = None
+
+    def _keep(self, gray, res, q):
+        """A found frame: its fit recorded, the velocity and the threshold level updated."""
+        xc, yc, r = res[0], res[1], res[2]
+        self.level = res[5]
+        if self.prev is not None and self.qual and self.qual[-1] != "lost":
+            self.vel = (xc - self.prev[0], yc - self.prev[1])
+        else:
+            self.vel = (0.0, 0.0)
+        self.prev = (xc, yc)
+        self.xs_px.append(xc)
+        self.ys_px.append(yc)
+        self.rs_px.append(r)
+        self.qual.append(q)
+        if len(self.vr_list) < self.st.scale_frames:
+            self.vr_list.append(_vertical_radius(res[4], xc, r))
+        self.n_since_init += 1
+        if self.n_since_init >= self.st.reinit_every:
+            self._reset_mosse(gray, xc, yc)
 
 
 def track_video(path, fps: float | None = None, *, ball_diameter_m: float | None = None,
