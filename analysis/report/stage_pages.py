@@ -54,10 +54,7 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
     from the runs' motion mode) marks a FAKE-twin run; ``parameters``, ``diagnosis``,
     ``quoted``, ``significance`` are what write_loop writes beside the page (default: derived
     from ``res``)."""
-    from analysis.report.loop_words import (FAKE, FAKE_WORDS, UNCONSTRAINED_RULE,
-                                            annotate_parameters, dof_words, is_fake_run,
-                                            quoted_stages, quoted_words, stage_kind,
-                                            stage_words, step_scale)
+    from analysis.report.loop_words import FAKE, FAKE_WORDS, annotate_parameters, is_fake_run
     i = res.info
     fake = is_fake_run(res) if fake is None else bool(fake)
     synth = " (SYNTHETIC)" if dataset.meta.get("synthetic") else ""
@@ -67,7 +64,35 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
         md += ["> **%s**" % FAKE_WORDS.replace("FAKE twin:", "FAKE TWIN:"), ""]
     md += ["**Verdict%s:** %s" % (" (%s twin)" % FAKE if fake else "", res.verdict), ""]
     stair = res.staircase.reset_index(drop=True)
-    quoted = quoted_stages(stair) if quoted is None and len(stair) else (quoted or {})
+    md += _verdict_context_lines(i, stair, quoted, fake)
+    md += _staircase_lines(stair, quoted, fake)
+    p = parameters if parameters is not None else annotate_parameters(
+        res.parameters, getattr(dataset, "conditions", None))
+    md += _parameter_lines(p)
+    md += _candidate_lines(res, diagnosis if diagnosis is not None else res.diagnosis,
+                           significance)
+    if i.get("failed_runs"):
+        md += ["", "%d twin run(s) failed and were left out of the model (loop.json "
+               "`failed_runs`), e.g. %s: %s" % (len(i["failed_runs"]),
+                                                i["failed_runs"][0]["run_id"],
+                                                str(i["failed_runs"][0]["error"])[-120:])]
+    md += _focus_lines(i.get("focus") or {})
+    md += _rerun_rows(i.get("reruns") or [])
+    md += ["", "![ranking](ranking.png)", "",
+           "Model: the emulator fitted to %d twin runs at the dataset's conditions (%d new this "
+           "time; waves: %s), reference point %s; wall time %.0f s."
+           % (len(res.model_runs), i["new_runs"], _wave_counts(res.model_runs),
+              _fmt_theta(i["reference_point"]), i["wall_s"]), ""]
+    if fake:
+        md += ["*%s.*" % FAKE_WORDS, ""]
+    return "\n".join(md)
+
+
+def _verdict_context_lines(i, stair, quoted, fake) -> list:
+    """The staircase rows the verdict quotes, a pinned measurement chain, the conditions and
+    the films tracked."""
+    from analysis.report.loop_words import quoted_words
+    md = []
     qw = quoted_words(stair, fake) if len(stair) else ""
     if qw:
         md += [qw, ""]
@@ -84,11 +109,19 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
         md += frame_table_lines(pd.DataFrame(i["tracking"]),
                                 ["condition_id", "video", "n_frames", "n_lost", "n_reacquired",
                                  "m_per_px", "scale_source", "jar_n_lost"])
-    md += ["", "## Staircase (chi2/dof)", "",
-           "Each row is the model (the emulator fitted to every twin run made for this "
-           "dataset, its own uncertainty in the likelihood) or the %s itself (fresh "
-           "runs at the fitted point); rows in the loop's order."
-           % ("FAKE twin (the analytic stand-in)" if fake else "real twin"), ""]
+    return md
+
+
+def _staircase_lines(stair, quoted, fake) -> list:
+    """The staircase table, each row named for what it is (quoted rows starred), the dof
+    explained, the figure."""
+    from analysis.report.loop_words import dof_words, quoted_stages, stage_kind, stage_words
+    quoted = quoted_stages(stair) if quoted is None and len(stair) else (quoted or {})
+    md = ["", "## Staircase (chi2/dof)", "",
+          "Each row is the model (the emulator fitted to every twin run made for this "
+          "dataset, its own uncertainty in the likelihood) or the %s itself (fresh "
+          "runs at the fitted point); rows in the loop's order."
+          % ("FAKE twin (the analytic stand-in)" if fake else "real twin"), ""]
     qrows = {int(v): k for k, v in quoted.items()}
     cols = ["", "stage", "what it is", "chi2", "dof", "fitted parameters", "chi2/dof",
             "p_value"]
@@ -101,17 +134,22 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                      _cell(r["chi2_dof"], "%.3g") if float(r.get("dof", 1)) > 0 else
                      "untestable", _cell(r.get("p_value"), "%.3g")))
     md += [""] + ["- " + w for w in (dof_words(stair) if len(stair) else [])]
-    md += ["", "![staircase](staircase.png)", "", "## Parameters", ""]
-    p = parameters if parameters is not None else annotate_parameters(
-        res.parameters, getattr(dataset, "conditions", None))
+    return md + ["", "![staircase](staircase.png)"]
+
+
+def _parameter_lines(p) -> list:
+    """The parameters' table: value, se, the profile interval (open ends said), whether the
+    data constrain it, the note; the rule for 'constrained'."""
+    from analysis.report.loop_words import UNCONSTRAINED_RULE
     p = p.copy()
     if "note" not in p.columns:
         p["note"] = ""
     p["note"] = p["note"].fillna("")
     if "constrained" not in p.columns:
         p["constrained"] = None
-    md += ["| name | role | value | se | 95 % profile interval | constrained by the data | "
-           "note |", "|---|---|---|---|---|---|---|"]
+    md = ["", "## Parameters", "",
+          "| name | role | value | se | 95 % profile interval | constrained by the data | "
+          "note |", "|---|---|---|---|---|---|---|"]
     for _, r in p.iterrows():
         c = r["constrained"]
         lo, hi = r.get("profile_lo"), r.get("profile_hi")
@@ -124,14 +162,20 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                   % (r["name"], r["role"], _cell(r["value"]), _cell(r.get("se")), iv,
                      "-" if c is None or pd.isna(c) else ("yes" if bool(c) else "**no**"),
                      r["note"]))
-    md += ["", "The rule, once: " + UNCONSTRAINED_RULE + ".", "", "## Candidates", ""]
-    d = diagnosis if diagnosis is not None else res.diagnosis
-    md += ["Order: the effects added first, in the order added (column `step`: the step that "
-           "added them); then the last step's candidates, the identifiable ones first "
-           "(column `identifiable`), each group by its chi2 gain (`delta_chi2`), largest "
-           "first. `needed` is the chi2 gain the candidate had to exceed at its step (the test "
-           "as applied, below); a candidate is significant when it is identifiable and its "
-           "gain exceeds it.", ""]
+    return md + ["", "The rule, once: " + UNCONSTRAINED_RULE + "."]
+
+
+def _candidate_lines(res, d, significance) -> list:
+    """The candidates' table in the order the page states, and the significance test as
+    applied at each step (the bootstrap's false alarms beside it)."""
+    from analysis.report.loop_words import step_scale
+    md = ["", "## Candidates", "",
+          "Order: the effects added first, in the order added (column `step`: the step that "
+          "added them); then the last step's candidates, the identifiable ones first "
+          "(column `identifiable`), each group by its chi2 gain (`delta_chi2`), largest "
+          "first. `needed` is the chi2 gain the candidate had to exceed at its step (the test "
+          "as applied, below); a candidate is significant when it is identifiable and its "
+          "gain exceeds it.", ""]
     dc = ["rank", "effect", "kind", "identifiable", "significant", "delta_chi2", "needed",
           "strength", "strength_se", "p_bonferroni", "step"]
     md += ["| " + " | ".join(dc) + " |", "|" + "---|" * len(dc)]
@@ -145,7 +189,7 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                 "applied_delta_chi2": float(g.threshold_delta_chi2) * step_scale(res.steps, k),
                 "n_candidates": len(g.table), "alpha": float(g.alpha)}
                for k, g in enumerate(res.diagnoses, start=1)]
-    boots = {int(b["step"]): b for b in (i.get("bootstrap") or [])}
+    boots = {int(b["step"]): b for b in (res.info.get("bootstrap") or [])}
     if sig:
         md += ["", "The significance test as applied, per step: a candidate's chi2 gain must "
                "exceed the Bonferroni threshold (the chi2_1 quantile at alpha / candidates, "
@@ -160,35 +204,26 @@ def loop_page(res, dataset, *, fake=None, parameters=None, diagnosis=None, quote
                          b["bootstrap_scale"], b["applied_delta_chi2"],
                          "; %d of %d bootstrap datasets named an effect at the nominal level"
                          % (bs["n_false"], bs["n_draws"]) if bs else ""))
-    if i.get("failed_runs"):
-        md += ["", "%d twin run(s) failed and were left out of the model (loop.json "
-               "`failed_runs`), e.g. %s: %s" % (len(i["failed_runs"]),
-                                                i["failed_runs"][0]["run_id"],
-                                                str(i["failed_runs"][0]["error"])[-120:])]
-    fw = i.get("focus") or {}
-    if fw:
-        b, a = fw["before"], fw["after"]
-        md += ["", "## Focus wave", "",
-               "%d design points (%d twin runs) about the first pass's fit, with the effects it "
-               "had found on; the emulator refitted with them, then the calibration and the "
-               "selection done again (the staircase and the candidates above are that second "
-               "pass)." % (fw["n_points"], fw["n_runs"]), "",
-               "| pass | effects | chi2/dof (the model) | point |", "|---|---|---|---|",
-               "| before the focus wave | %s | %s | %s |"
-               % (", ".join(b["effects"]) or "none", _cell(b["chi2_dof"], "%.3g"),
-                  _fmt_theta(b["point"])),
-               "| after it | %s | %s | %s |"
-               % (", ".join(a["effects"]) or "none", _cell(a["chi2_dof"], "%.3g"),
-                  _fmt_theta(a["point"]))]
-    md += _rerun_rows(i.get("reruns") or [])
-    md += ["", "![ranking](ranking.png)", "",
-           "Model: the emulator fitted to %d twin runs at the dataset's conditions (%d new this "
-           "time; waves: %s), reference point %s; wall time %.0f s."
-           % (len(res.model_runs), i["new_runs"], _wave_counts(res.model_runs),
-              _fmt_theta(i["reference_point"]), i["wall_s"]), ""]
-    if fake:
-        md += ["*%s.*" % FAKE_WORDS, ""]
-    return "\n".join(md)
+    return md
+
+
+def _focus_lines(fw) -> list:
+    """The focus wave's two passes, before and after it (none without one)."""
+    if not fw:
+        return []
+    b, a = fw["before"], fw["after"]
+    return ["", "## Focus wave", "",
+            "%d design points (%d twin runs) about the first pass's fit, with the effects it "
+            "had found on; the emulator refitted with them, then the calibration and the "
+            "selection done again (the staircase and the candidates above are that second "
+            "pass)." % (fw["n_points"], fw["n_runs"]), "",
+            "| pass | effects | chi2/dof (the model) | point |", "|---|---|---|---|",
+            "| before the focus wave | %s | %s | %s |"
+            % (", ".join(b["effects"]) or "none", _cell(b["chi2_dof"], "%.3g"),
+               _fmt_theta(b["point"])),
+            "| after it | %s | %s | %s |"
+            % (", ".join(a["effects"]) or "none", _cell(a["chi2_dof"], "%.3g"),
+               _fmt_theta(a["point"]))]
 
 
 def _rerun_rows(reruns) -> list:
