@@ -969,7 +969,7 @@ def confirm_stage(state: LoopState, twin, log=print):
         theta, added, refit, dropped = prune_effects(m, state.obs, state.theta, state.added,
                                                      state.selection.need, log)
         moved = fitted_moves(state.final, refit) if not dropped else math.inf
-        state.dropped += [dict(d, round=r + 1) for d in dropped]
+        state.dropped += [dict(d, round=r + 1, wave=runs["wave"].iloc[0]) for d in dropped]
         state.reruns.append(Rerun(round=r + 1, point=state.point.to_dict(), runs=runs,
                                   score=score, moved_se=moved))
         state.stair.append(_stage_row("refitted on the twin reruns", refit,
@@ -1051,7 +1051,9 @@ def interval_stage(state: LoopState, twin, log=print):
     (:func:`end_points`, one seed per condition: design points where the posterior's edge
     lies - the emulator is refined at the fitted point, and an end it never saw runs at can
     be its error rather than the data's), the emulator refitted with their runs, the final
-    fit and the intervals redone; rounds until no end moves (``interval_rounds`` at most)."""
+    fit and the intervals redone - an effect that no longer gains what it needed when it was
+    added dropped first (:func:`prune_effects`); rounds until no end moves
+    (``interval_rounds`` at most)."""
     from analysis.history_matching import design_runs
     profile_all(state)
     s, m = state.settings, state.model
@@ -1076,10 +1078,14 @@ def interval_stage(state: LoopState, twin, log=print):
             "%s %s %.4g" % e[:3] for e in ends)))
         runs = twin(runs)
         m.fit(pd.concat([m.runs_, runs], ignore_index=True))
-        refit = joint_fit(m, state.obs, state.theta, state.added)
+        # every effect must still earn its place on the emulator the ends' runs refined (as
+        # after a rerun: backward elimination), then the joint fit
+        need = state.selection.need if state.selection is not None else {}
+        theta, added, refit, dropped = prune_effects(m, state.obs, state.theta, state.added,
+                                                     need, log)
+        state.dropped += [dict(d, round=r + 1, wave=runs["wave"].iloc[0]) for d in dropped]
         state.final = refit
-        state.set_point({p.name: refit.params[p.name] for p in m.base_params()},
-                        {k: refit.params[k] for k in state.added})
+        state.set_point(theta, added)
         state.stair.append(_stage_row("refitted with the interval ends' runs", refit,
                                       state.n_base + len(state.added)))
         profile_all(state)
@@ -1492,9 +1498,11 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                      "no candidate effect explains the misfit (%s, p = %.2g)"
                      % (head, cal.p_value))
     for d in dropped:
-        parts.append("%s, named before the twin reruns, dropped after them: on the emulator "
+        what = ("the runs at the intervals' ends" if str(d.get("wave", "")).startswith(
+            "interval") else "the twin reruns")
+        parts.append("%s, named before %s, dropped after them: on the emulator "
                      "refitted with their runs it gains chi2 %.1f, %.1f needed"
-                     % (d["effect"], d["delta_chi2"], d["needed"]))
+                     % (d["effect"], what, d["delta_chi2"], d["needed"]))
     if added and final.p_value < alpha:
         status = "effects_partial"
         parts.append("what stays unexplained: chi2/dof %.2f (p = %.2g) after the effects found"

@@ -1001,13 +1001,15 @@ def test_a_point_that_leans_on_the_emulator_is_refined_before_it_is_final(tmp_pa
         assert leaning is (not res.info["final_lean"]["sure"])
 
 
-def test_the_intervals_ends_are_run_and_the_intervals_redone(fake_dataset, tmp_path):
+def test_the_intervals_ends_are_run_and_the_intervals_redone(fake_dataset, tmp_path,
+                                                             monkeypatch):
     """The interval stage with a twin: each closed end of a design input's interval gets a
     design point (that parameter at the end, the others profiled there) run at every
     condition with one seed; the emulator is refitted with the runs, the final fit and the
     intervals redone (the staircase's last row); the next round would run only the ends that
     moved by more than END_TOL_WIDTH of their interval's width; the powder line's parameters
-    get no runs (they act after the twin)."""
+    get no runs (they act after the twin); an added effect that no longer gains what it
+    needed is dropped."""
     # two of the base parameters free (the frictions held): the profiles' cost
     s = loop.LoopSettings(base=("restitution", "amplitude_m"), points=10, waves=0,
                           focus_points=0, null_draws=0, max_effects=0, interval_rounds=1)
@@ -1044,3 +1046,18 @@ def test_the_intervals_ends_are_run_and_the_intervals_redone(fake_dataset, tmp_p
     assert loop.end_points(state, {(n, sd): v for n, sd, v, _, _ in again} | {
         (n, "lower"): iv.lower for n, iv in state.intervals.items()} | {
         (n, "upper"): iv.upper for n, iv in state.intervals.items()}) == []
+    # an effect that does not belong (the data hide a jar compliance, not air drag), as if
+    # named on an emulator that has since learned: the round's refit drops it when it no
+    # longer gains what it needed, as after a rerun, and the verdict says after which runs
+    state.selection = loop.Selection(added={"air_drag": 0.5}, theta=dict(state.theta),
+                                     diagnoses=[], steps=[], stairs=[],
+                                     need={"air_drag": 10.0})
+    state.set_point(dict(state.theta), {"air_drag": 0.5})
+    state.final = loop.joint_fit(state.model, state.obs, state.theta, state.added)
+    # (the profiles are checked above: the round runs the same ends again, from the cache)
+    monkeypatch.setattr(loop, "profile_all", lambda st: None)
+    loop.interval_stage(state, twin, log=lambda m: None)
+    assert not state.added and [d["effect"] for d in state.dropped] == ["air_drag"]
+    (d,) = state.dropped
+    assert d["wave"] == "interval ends 1" and d["delta_chi2"] < d["needed"] == 10.0
+    assert state.stair[-1]["n_params"] == state.n_base
