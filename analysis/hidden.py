@@ -13,6 +13,7 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -119,8 +120,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     """
     from effects import load_effects
     from analysis import kinetics
-    from analysis.measurements import Dataset, load_dataset, write_dataset
-    from analysis.sweep import run_sweep
+    from analysis.measurements import load_dataset
     if replicates < 1 or v_rel_sd < 0 or f_col_sd_hz < 0 or yield_sd_pct < 0:
         raise ValueError("replicates must be >= 1 and noise sds >= 0")
     if any(not np.isfinite(t) or t <= 0 for t in yield_times_min):
@@ -132,112 +132,182 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
         raise ValueError("kinetics effects do not compose: %s" % [k.name for k in kin])
     dem_effects = {k: v for k, v in effects.items() if k in
                    {e.name for e in load_effects(effects, side="dem")}}
-    slope = kinetics.PAPER_SLOPE_PCT_PER_KJ if slope_pct_per_kj is None else slope_pct_per_kj
-    intercept = kinetics.PAPER_INTERCEPT_PCT if intercept_pct is None else intercept_pct
+    line = _PowderLine(
+        kinetics.PAPER_SLOPE_PCT_PER_KJ if slope_pct_per_kj is None else slope_pct_per_kj,
+        kinetics.PAPER_INTERCEPT_PCT if intercept_pct is None else intercept_pct,
+        kin[0] if kin else None)
     if conditions is None:
         conditions = load_dataset(PAPER_TABLE3_DIR).conditions
     base = dict(base_config or {})
-    seed_first = 1000 * (seed if twin_seed is None else twin_seed)
-    # a condition that states its stroke (amplitude_mm) is run at it, as the loop's model runs it
-    runs = condition_runs(conditions, [seed_first + k for k in range(replicates)],
-                          base_config=base, effects=dem_effects, stated_stroke=True)
-    configs, owners = [r.config for r in runs], [r.condition_id for r in runs]
-    res = run_sweep(configs, runner=runner, workers=workers, runs_dir=runs_dir,
-                    progress=progress)
-    if not res.ok:
-        raise RuntimeError("hidden dataset %s: %d twin run(s) failed:\n%s"
-                           % (name, res.n_failed, res.failed()[["run_id", "error"]].to_string()))
-    t = res.table.reset_index(drop=True).assign(condition_id=owners)
-    means = t.groupby("condition_id", sort=False)[["v_mean_m_s", "f_col_hz"]].mean()
-    rng = np.random.default_rng(seed)
+    twin_seed = seed if twin_seed is None else twin_seed
+    t = _replicate_runs(name, conditions, [1000 * twin_seed + k for k in range(replicates)],
+                        base, dem_effects, runner=runner, workers=workers, runs_dir=runs_dir,
+                        progress=progress)
     ids = list(conditions["condition_id"])
-    v_true = means.loc[ids, "v_mean_m_s"].to_numpy(float)
-    f_true = means.loc[ids, "f_col_hz"].to_numpy(float)
-    v_meas = v_true * (1.0 + v_rel_sd * rng.standard_normal(len(ids)))
-    f_meas = f_true + f_col_sd_hz * rng.standard_normal(len(ids))
-    # the twin's own scatter of a mean of `replicates` runs, pooled over the conditions
-    g = t.groupby("condition_id", sort=False)
-    v_rel_rep = (float(np.sqrt(np.nanmean((g["v_mean_m_s"].std() / g["v_mean_m_s"].mean())
-                                          ** 2))) if replicates > 1 else 0.0)
-    f_rep = float(np.sqrt(np.nanmean(g["f_col_hz"].std() ** 2))) if replicates > 1 else 0.0
-    v_rel_rep = _per_condition(twin_v_rel_sd, v_rel_rep, ids, "twin_v_rel_sd")
-    f_rep = _per_condition(twin_f_col_sd_hz, f_rep, ids, "twin_f_col_sd_hz")
-    v_sd = np.hypot(v_rel_sd, v_rel_rep / np.sqrt(replicates)) * v_meas
-    f_sd = np.hypot(f_col_sd_hz, f_rep / np.sqrt(replicates))
-    summary = pd.DataFrame({"condition_id": ids, "v_mean_m_s": v_meas, "v_mean_sd_m_s": v_sd,
-                            "f_col_hz": f_meas, "f_col_sd_hz": f_sd})
-    yields, y_true = None, {}
-    if len(yield_times_min):
-        cond_by_id = conditions.set_index("condition_id")
-        rows = []
-        for i, (cid, v, f) in enumerate(zip(ids, v_true, f_true)):
-            m = kinetics.ball_mass_kg(float(cond_by_id.loc[cid, "ball_diameter_mm"]) * 1e-3)
-            e_kin = 0.5 * m * v * v
-            t_s = np.asarray(yield_times_min, float) * 60.0
-            x = (kin[0].yield_pct(e_kin, f, t_s, slope, intercept) if kin
-                 else slope * e_kin * f * t_s / 1000.0 + intercept)
-            y_true[cid] = [float(z) for z in np.atleast_1d(x)]
-            # the twin's own scatter of (v, f_col) carried into E_tot, beside the measurement
-            # noise: the reported sd, as for v_mean and f_col
-            twin_y_sd = (slope * t_s / 1000.0 * np.hypot(m * v * f * v_rel_rep[i] * v,
-                                                         e_kin * f_rep[i]) / math.sqrt(replicates))
-            for tm, z, tsd in zip(yield_times_min, np.atleast_1d(x), twin_y_sd):
-                # a measured yield lies in [0, 100] %
-                z_meas = min(max(float(z) + yield_sd_pct * rng.standard_normal(), 0.0), 100.0)
-                rows.append((cid, float(tm), z_meas, float(math.hypot(yield_sd_pct, tsd))))
-        yields = pd.DataFrame(rows, columns=["condition_id", "time_min", "yield_pct",
-                                             "yield_sd_pct"])
+    means = t.groupby("condition_id", sort=False)[["v_mean_m_s", "f_col_hz"]].mean()
+    twin = _TwinMeans(ids, means.loc[ids, "v_mean_m_s"].to_numpy(float),
+                      means.loc[ids, "f_col_hz"].to_numpy(float),
+                      *_twin_scatter(t, ids, replicates, twin_v_rel_sd, twin_f_col_sd_hz),
+                      replicates)
+    rng = np.random.default_rng(seed)
+    summary = _measured_summary(twin, v_rel_sd, f_col_sd_hz, rng)
+    yields, y_true = (_measured_yields(twin, conditions, line, yield_times_min, yield_sd_pct,
+                                       rng) if len(yield_times_min) else (None, {}))
+    if tracks and track_scale_sd is None:
+        from analysis.flights import FILM_SCALE_REL_SD
+        track_scale_sd = FILM_SCALE_REL_SD
+    track_tables, twin_flights = _camera_tracks(t, runs_dir, tracks, track_noise_m,
+                                                track_scale_sd, rng, seed)
     meta = {"name": name,
             "description": "SYNTHETIC hidden-effect dataset made from the twin with measurement "
                            "noise; its truth is kept apart (results/hidden/%s.truth.json)" % name,
             "source": "analysis.hidden (SYNTHETIC)", "velocity_frame": "lab", "synthetic": True}
     cond = conditions[["condition_id", "frequency_hz", "ball_diameter_mm"]].copy()
-    out = Path(out_dir or MEASUREMENTS_DIR / name)
-    track_tables, twin_flights = {}, {}
-    if tracks:
-        from analysis.config import RUNS_DIR
-        from analysis.twin_runs import run_flights
-        from analysis.observe import camera_track
-        root = Path(runs_dir or RUNS_DIR)
-        have = all((root / str(r) / "trajectory.csv").is_file() for r in t["run_id"])
-        if tracks == "auto" and not have:
-            tracks = False
-        if track_scale_sd is None:
-            from analysis.flights import FILM_SCALE_REL_SD
-            track_scale_sd = FILM_SCALE_REL_SD
-        # its own stream: the scale draws leave the other noise of a seed as it was
-        rng_scale = np.random.default_rng([int(seed), 7])
-        for cid, g in (t.groupby("condition_id", sort=False) if tracks else ()):
-            tr = camera_track(root / str(g["run_id"].iloc[0]))
-            scale = 1.0 + track_scale_sd * rng_scale.standard_normal()
-            for c in ("x_m", "y_m", "jar_x_m"):
-                tr[c] = scale * tr[c] + track_noise_m * rng.standard_normal(len(tr))
-            track_tables[cid] = tr[["t_s", "x_m", "y_m", "jar_x_m"]]
-            fl = run_flights(list(g["run_id"]), root).dropna()
-            if len(fl):
-                twin_flights[cid] = {k: float(fl[k].mean()) for k in fl.columns if k != "run_id"}
+    from analysis.measurements import Dataset
     ds = Dataset(name=name, description=meta["description"], source=meta["source"],
                  velocity_frame="lab", conditions=cond, summary=summary, yields=yields,
                  meta=meta, tracks=track_tables)
-    ds_path = write_dataset(ds, out, overwrite=True)
     truth = {"name": name, "effects": effects, "base_config": base, "replicates": replicates,
              "noise": {"v_rel_sd": v_rel_sd, "f_col_sd_hz": f_col_sd_hz, "seed": seed,
-                       "twin_seed": seed if twin_seed is None else twin_seed,
-                       "yield_sd_pct": yield_sd_pct,
-                       "twin_v_rel_sd": dict(zip(ids, map(float, v_rel_rep))),
-                       "twin_f_col_sd_hz": dict(zip(ids, map(float, f_rep)))},
-             "kinetics": {"slope_pct_per_kj": slope, "intercept_pct": intercept,
+                       "twin_seed": twin_seed, "yield_sd_pct": yield_sd_pct,
+                       "twin_v_rel_sd": dict(zip(ids, map(float, twin.v_rel_rep))),
+                       "twin_f_col_sd_hz": dict(zip(ids, map(float, twin.f_rep_hz)))},
+             "kinetics": {"slope_pct_per_kj": line.slope, "intercept_pct": line.intercept,
                           "yield_times_min": list(yield_times_min), "yields_true": y_true},
              "twin_means": {cid: {"v_mean_m_s": float(v), "f_col_hz": float(f)}
-                            for cid, v, f in zip(ids, v_true, f_true)},
+                            for cid, v, f in zip(ids, twin.v_m_s, twin.f_hz)},
              "twin_flights": twin_flights,
              "track_noise_m": track_noise_m if track_tables else None,
              "track_scale_sd": track_scale_sd if track_tables else None,
              "run_ids": list(t["run_id"])}
+    return _write_pair(ds, truth, name, out_dir, truth_dir)
+
+
+@dataclass(frozen=True)
+class _PowderLine:
+    """The yields' law: X = slope E_tot + intercept [% per kJ, %], or a kinetics effect's."""
+    slope: float
+    intercept: float
+    kinetics: object = None
+
+    def yield_pct(self, e_kin_j, f_col_hz, t_s):
+        if self.kinetics is not None:
+            return self.kinetics.yield_pct(e_kin_j, f_col_hz, t_s, self.slope, self.intercept)
+        return self.slope * e_kin_j * f_col_hz * t_s / 1000.0 + self.intercept
+
+
+@dataclass(frozen=True)
+class _TwinMeans:
+    """The twin's noise-free means per condition (in ``ids`` order) and its own scatter of one
+    run: relative for v_mean, [1/s] for f_col; ``replicates`` runs make each mean."""
+    ids: list
+    v_m_s: np.ndarray
+    f_hz: np.ndarray
+    v_rel_rep: np.ndarray
+    f_rep_hz: np.ndarray
+    replicates: int
+
+
+def _replicate_runs(name, conditions, seeds, base, dem_effects, **sweep) -> pd.DataFrame:
+    """The twin's runs at every condition and seed (a condition that states its stroke,
+    amplitude_mm, is run at it, as the loop's model runs it): the sweep's table with
+    condition_id. Raises RuntimeError when a run failed."""
+    from analysis.sweep import run_sweep
+    runs = condition_runs(conditions, seeds, base_config=base, effects=dem_effects,
+                          stated_stroke=True)
+    res = run_sweep([r.config for r in runs], **sweep)
+    if not res.ok:
+        raise RuntimeError("hidden dataset %s: %d twin run(s) failed:\n%s"
+                           % (name, res.n_failed, res.failed()[["run_id", "error"]].to_string()))
+    return res.table.reset_index(drop=True).assign(condition_id=[r.condition_id for r in runs])
+
+
+def _twin_scatter(t, ids, replicates, twin_v_rel_sd, twin_f_col_sd_hz):
+    """The twin's scatter of one run per condition (relative v_mean, f_col [1/s]): as given, or
+    pooled over the conditions from the replicates (0 with one replicate)."""
+    g = t.groupby("condition_id", sort=False)
+    v_rel_rep = (float(np.sqrt(np.nanmean((g["v_mean_m_s"].std() / g["v_mean_m_s"].mean())
+                                          ** 2))) if replicates > 1 else 0.0)
+    f_rep = float(np.sqrt(np.nanmean(g["f_col_hz"].std() ** 2))) if replicates > 1 else 0.0
+    return (_per_condition(twin_v_rel_sd, v_rel_rep, ids, "twin_v_rel_sd"),
+            _per_condition(twin_f_col_sd_hz, f_rep, ids, "twin_f_col_sd_hz"))
+
+
+def _measured_summary(twin, v_rel_sd, f_col_sd_hz, rng) -> pd.DataFrame:
+    """summary.csv: the twin's means with measurement noise; the sd stated is that noise and
+    the twin's own scatter of a mean of its replicates combined."""
+    n = len(twin.ids)
+    v_meas = twin.v_m_s * (1.0 + v_rel_sd * rng.standard_normal(n))
+    f_meas = twin.f_hz + f_col_sd_hz * rng.standard_normal(n)
+    v_sd = np.hypot(v_rel_sd, twin.v_rel_rep / np.sqrt(twin.replicates)) * v_meas
+    f_sd = np.hypot(f_col_sd_hz, twin.f_rep_hz / np.sqrt(twin.replicates))
+    return pd.DataFrame({"condition_id": twin.ids, "v_mean_m_s": v_meas, "v_mean_sd_m_s": v_sd,
+                         "f_col_hz": f_meas, "f_col_sd_hz": f_sd})
+
+
+def _measured_yields(twin, conditions, line, times_min, yield_sd_pct, rng):
+    """yields.csv from the twin's means through ``line``, with noise (clipped to [0, 100] %),
+    and the noise-free yields per condition."""
+    from analysis import kinetics
+    d_mm = conditions.set_index("condition_id")["ball_diameter_mm"]
+    t_s = np.asarray(times_min, float) * 60.0
+    rows, y_true = [], {}
+    for i, (cid, v, f) in enumerate(zip(twin.ids, twin.v_m_s, twin.f_hz)):
+        m = kinetics.ball_mass_kg(float(d_mm.loc[cid]) * 1e-3)
+        e_kin = 0.5 * m * v * v
+        x = line.yield_pct(e_kin, f, t_s)
+        y_true[cid] = [float(z) for z in np.atleast_1d(x)]
+        # the twin's own scatter of (v, f_col) carried into E_tot, beside the measurement
+        # noise: the reported sd, as for v_mean and f_col
+        twin_y_sd = (line.slope * t_s / 1000.0
+                     * np.hypot(m * v * f * twin.v_rel_rep[i] * v, e_kin * twin.f_rep_hz[i])
+                     / math.sqrt(twin.replicates))
+        for tm, z, tsd in zip(times_min, np.atleast_1d(x), twin_y_sd):
+            z_meas = min(max(float(z) + yield_sd_pct * rng.standard_normal(), 0.0), 100.0)
+            rows.append((cid, float(tm), z_meas, float(math.hypot(yield_sd_pct, tsd))))
+    return (pd.DataFrame(rows, columns=["condition_id", "time_min", "yield_pct",
+                                        "yield_sd_pct"]), y_true)
+
+
+def _camera_tracks(t, runs_dir, tracks, noise_m, scale_sd, rng, seed):
+    """tracks/<condition_id>.csv: each condition's first run as the camera sees it (lab frame,
+    jar_x_m), with white tracking noise and one length-scale error per film; and the twin's
+    mean impact observables per condition (for the truth). ({}, {}) when ``tracks`` is False,
+    or 'auto' and a run has no trajectory."""
+    if not tracks:
+        return {}, {}
+    from analysis.config import RUNS_DIR
+    from analysis.twin_runs import run_flights
+    from analysis.observe import camera_track
+    root = Path(runs_dir or RUNS_DIR)
+    if tracks == "auto" and not all((root / str(r) / "trajectory.csv").is_file()
+                                    for r in t["run_id"]):
+        return {}, {}
+    # its own stream: the scale draws leave the other noise of a seed as it was
+    rng_scale = np.random.default_rng([int(seed), 7])
+    tables, flights = {}, {}
+    for cid, g in t.groupby("condition_id", sort=False):
+        tr = camera_track(root / str(g["run_id"].iloc[0]))
+        scale = 1.0 + scale_sd * rng_scale.standard_normal()
+        for c in ("x_m", "y_m", "jar_x_m"):
+            tr[c] = scale * tr[c] + noise_m * rng.standard_normal(len(tr))
+        tables[cid] = tr[["t_s", "x_m", "y_m", "jar_x_m"]]
+        fl = run_flights(list(g["run_id"]), root).dropna()
+        if len(fl):
+            flights[cid] = {k: float(fl[k].mean()) for k in fl.columns if k != "run_id"}
+    return tables, flights
+
+
+def _write_pair(ds, truth, name, out_dir, truth_dir):
+    """Write the dataset and its truth file together: the truth is staged first and renamed
+    only once the dataset's folder is in place, so an error or a kill leaves the earlier pair
+    as it was (never a new dataset beside an old truth). Returns (dataset, truth) paths."""
     from analysis.atomic_dir import atomic_file
-    _, truth_path = check_outputs(name, out_dir, truth_dir)
+    from analysis.measurements import write_dataset
+    out, truth_path = check_outputs(name, out_dir, truth_dir)
     with atomic_file(truth_path) as tmp:
         tmp.write_text(json.dumps(truth, indent=1))
+        ds_path = write_dataset(ds, out, overwrite=True)
     return ds_path, truth_path
 
 

@@ -101,3 +101,36 @@ def test_two_kinetics_effects_are_refused(tmp_path):
             "h", {"induction_period": {}, "first_order_depletion": {}}, runner=run_fake_twin,
             runs_dir=tmp_path / "runs", out_dir=tmp_path / "ds", truth_dir=tmp_path / "t")
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("fails", ["dataset", "truth"])
+def test_a_failed_rewrite_leaves_the_earlier_dataset_and_truth_together(tmp_path, monkeypatch,
+                                                                        fails):
+    """Rewriting a dataset: when writing the new dataset or the new truth fails, neither file of
+    the pair changes (no new dataset beside the old truth, no new truth beside the old
+    dataset), and no staged file is left behind."""
+    ds_path, truth_path = make(tmp_path, seed=3)
+    before = ((ds_path / "summary.csv").read_text(), truth_path.read_text())
+    import analysis.measurements as measurements
+    from pathlib import Path
+    write_text = Path.write_text
+
+    def broken(*a, **k):
+        raise OSError("disk full")
+
+    def broken_truth(self, *a, **k):
+        if self.parent == truth_path.parent:
+            raise OSError("disk full")
+        return write_text(self, *a, **k)
+    if fails == "dataset":
+        monkeypatch.setattr(measurements, "write_dataset", broken)
+    else:
+        monkeypatch.setattr(Path, "write_text", broken_truth)
+    with pytest.raises(OSError, match="disk full"):
+        make(tmp_path, seed=4)
+    assert ((ds_path / "summary.csv").read_text(), truth_path.read_text()) == before
+    assert sorted(p.name for p in truth_path.parent.iterdir()) == [truth_path.name]
+    monkeypatch.undo()
+    make(tmp_path, seed=4)
+    assert (ds_path / "summary.csv").read_text() != before[0]
+    assert json.loads(truth_path.read_text())["noise"]["seed"] == 4
