@@ -362,6 +362,11 @@ def main(argv=None):
         bounds = parse_free(args.free)
         base = base_config_of(args.base_profile, args.set, bounds, args.frame)
         ds = load_dataset(args.dataset)
+        from analysis.conditions import physics_table
+        from analysis.loop import check_balls_fit
+        from analysis.measurements import conditions_file
+        physics_table(ds.conditions, conditions_file(ds))     # one ball, distinct physics
+        check_balls_fit(ds, base or {})                       # each ball fits the jar
         if args.v_rel_sd is not None:
             from analysis.loop import with_assumed_v_sd
             ds = with_assumed_v_sd(ds, args.v_rel_sd)

@@ -1950,6 +1950,7 @@ def prepare(a):
     for line in ds.warnings:            # accepted, but outside what the twin is tested on
         print("analysis.loop: warning: %s" % line, file=sys.stderr)
     physics_table(ds.conditions, conditions_file(ds))
+    check_balls_fit(ds, base_config)
     pinned_observation(ds)              # a stated chain outside its bounds: before any run
     if a.v_rel_sd is not None:
         ds = with_assumed_v_sd(ds, a.v_rel_sd)
@@ -1960,6 +1961,22 @@ def prepare(a):
               % (max_effects, a.max_effects, max_effects + 1), file=sys.stderr)
     settings = settings_of(a, max_effects, extra, free).check()
     return ds, settings, base_config, twin_of(a, base_config)
+
+
+def check_balls_fit(ds, base_config):
+    """Each condition's ball fits the jar its runs name (the scene's rule,
+    :func:`analysis.twin.check_ball_fits_jar`), before any run: a ConditionError naming the
+    row, not a wave of failed runs."""
+    from analysis.config import twin_config
+    from analysis.run_configs import condition_runs
+    from analysis.twin import check_ball_fits_jar
+    for i, r in enumerate(condition_runs(ds.conditions, base_config=base_config)):
+        try:
+            check_ball_fits_jar(twin_config.complete_config(dict(r.config)))
+        except twin_config.ConfigError as exc:
+            raise ConditionError("%s, row %d (line %d), column 'ball_diameter_mm': condition "
+                                 "%r: %s" % (conditions_file(ds), i + 1, i + 2,
+                                             r.condition_id, exc))
 
 
 def twin_of(a, base_config) -> TwinRuns:

@@ -186,6 +186,21 @@ def test_cli_refuses_a_dataset_too_small_for_the_parameters(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_cli_refuses_a_ball_larger_than_the_jar(tmp_path, capsys):
+    """A condition whose ball cannot move in the jar: one error naming the row, before any
+    run; nothing written."""
+    import shutil
+    d = tmp_path / "big"
+    shutil.copytree(PAPER_TABLE3_DIR, d)
+    c = pd.read_csv(d / "conditions.csv")
+    c.loc[1, "ball_diameter_mm"] = 30.0
+    c.to_csv(d / "conditions.csv", index=False)
+    assert cal.main(["--fake", "--dataset", str(d), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "row 2 (line 3), column 'ball_diameter_mm'" in err and "does not fit" in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_the_calibration_asks_for_the_loops_runs():
     """One model: on the same dataset the calibration's wave 0 (its design, seeds and run
     configs: the frame included) is the loop's, run id for run id - so the runs the loop

@@ -329,6 +329,26 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
     assert set(p.name for p in config.FAKE_RUNS_DIR.iterdir()) == before   # nothing ran
 
 
+def test_a_ball_larger_than_the_jar_is_refused_before_any_run(fake_dataset, tmp_path, capsys):
+    """A condition whose ball cannot move in the jar (the scene's rule): one error naming the
+    file, row and column, exit 2, no run and no output folder."""
+    import shutil
+    from analysis import config
+    ds = tmp_path / "big_ball"
+    shutil.copytree(fake_dataset, ds)
+    c = pd.read_csv(ds / "conditions.csv")
+    c.loc[2, "ball_diameter_mm"] = 40.0
+    c.to_csv(ds / "conditions.csv", index=False)
+    before = set(p.name for p in config.FAKE_RUNS_DIR.iterdir())
+    assert loop.main(["--dataset", str(ds), "--out", str(tmp_path / "o"), "--fake"]
+                     + SMALL) == 2
+    err = capsys.readouterr().err
+    assert "conditions.csv, row 3 (line 4), column 'ball_diameter_mm'" in err
+    assert "larger than the jar's inner diameter" in err
+    assert not (tmp_path / "o").exists()
+    assert set(p.name for p in config.FAKE_RUNS_DIR.iterdir()) == before
+
+
 def test_options_of_the_anchored_model_are_still_accepted(fake_dataset, tmp_path, capsys):
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(tmp_path / "o"), "--dry-run",
                     "--fake", "--max-reanchor", "0", "--diff-replicates", "2",
