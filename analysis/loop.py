@@ -1463,46 +1463,16 @@ def _diagnosis_table(steps, added, eff_se):
 
 def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                    parameters=None, dropped=(), lean=None, fake=False):
-    from analysis.report.loop_words import is_constrained, prior_sd, spread_of, \
-        stated_stroke_words
-    head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
-            "calibrated chi2/dof untestable (dof %d: no more observations than fitted "
-            "parameters)" % cal.dof)
-    parts = []
+    """(status, the verdict's sentences): what was found or not, what was dropped, what stays
+    unexplained, the residual structure, what was held, what the data leave loose, the rerun
+    and whether the final point leans on the emulator's uncertainty."""
     if added:
-        found = []
-        for k, s in added.items():
-            c = candidates()[k]
-            found.append("%s (%s = %.3g +- %.2g%s)" % (k, c.strength_label, s, eff_se[k],
-                                                      _interval_words(parameters, k)))
         status = "effects"
-        parts.append("missing effect%s: %s; chi2/dof %.2f -> %.2f"
-                     % ("s" if len(added) > 1 else "", "; ".join(found), cal.chi2_dof,
-                        final.chi2_dof))
-        # ties: a candidate as good as the one added at its step
-        for d in diags:
-            if d.best is None:
-                continue
-            t = d.table
-            b = t[t["effect"] == d.best].iloc[0]
-            ties = t[t["significant"] & (t["effect"] != d.best)
-                     & (b["delta_chi2"] - t["delta_chi2"] < TIE_DELTA_CHI2)]
-            for _, o in ties.iterrows():
-                parts.append("%s explains the data about as well as %s (chi2 gain %.1f "
-                             "against %.1f): the data cannot tell them apart"
-                             % (o["effect"], d.best, o["delta_chi2"], b["delta_chi2"]))
+        parts = [_found_words(added, eff_se, parameters, cal, final)] + _tie_words(diags)
     else:
         status = "nothing_missing" if cal.p_value >= alpha else "unexplained"
-        parts.append("nothing missing: no candidate effect is significant; %s" % head
-                     if status == "nothing_missing" else
-                     "no candidate effect explains the misfit (%s, p = %.2g)"
-                     % (head, cal.p_value))
-    for d in dropped:
-        what = ("the runs at the intervals' ends" if str(d.get("wave", "")).startswith(
-            "interval") else "the twin reruns")
-        parts.append("%s, named before %s, dropped after them: on the emulator "
-                     "refitted with their runs it gains chi2 %.1f, %.1f needed"
-                     % (d["effect"], what, d["delta_chi2"], d["needed"]))
+        parts = [_nothing_words(cal, status)]
+    parts += [_dropped_words(d) for d in dropped]
     if added and final.p_value < alpha:
         status = "effects_partial"
         parts.append("what stays unexplained: chi2/dof %.2f (p = %.2g) after the effects found"
@@ -1516,35 +1486,8 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
     if demoted:
         parts.append(demoted[-1].verdict)
     if model.held:
-        held = []
-        stroke = stated_stroke_words(getattr(dataset, "conditions", None))
-        for k, reason in model.held.items():
-            if k == "amplitude_m" and stroke:
-                held.append("the stroke as the dataset states it (amplitude_mm %s), not "
-                            "fitted" % stroke)
-            else:
-                held.append("%s held at %.4g (%s)"
-                            % (k, float(model.theta_ref.get(k, np.nan)), reason))
-        parts.append("; ".join(held))
-    # parameters the data leave about as uncertain as the prior (the report's rule)
-    loose = []
-    try:
-        bounds = {p.name: (p.lower, p.upper) for p in model.base_params()}
-    except (AttributeError, TypeError):
-        bounds = {}
-    cands = candidates()
-    bounds.update({k: (0.0, float(cands[k].s_max)) for k in added if k in cands})
-    priors = getattr(model, "priors", None) or {}
-    ivs = ({} if parameters is None or "profile_lo" not in parameters else
-           {r["name"]: (r["profile_lo"], r["profile_hi"]) for r in parameters.to_dict("records")})
-    for k in bounds:
-        se = float(final.stderr.get(k, np.nan)) if k not in added else float(
-            eff_se.get(k, np.nan))
-        lo, hi = (float(v) for v in ivs.get(k, (np.nan, np.nan)))
-        sd = prior_sd(k, bounds, priors)
-        if np.isfinite(sd) and sd > 0 and not is_constrained(se, sd, lo, hi):
-            loose.append("%s (spread %.2g for a prior sd %.2g)" % (k, spread_of(se, lo, hi),
-                                                                   sd))
+        parts.append(_held_words(model, dataset))
+    loose = _loose_words(model, added, final, eff_se, parameters)
     if loose:
         parts.append("not constrained by the data: " + ", ".join(loose))
     if rr is not None:
@@ -1558,6 +1501,94 @@ def _verdict_words(diags, added, eff_se, cal, final, rr, dataset, model, alpha,
                      "because the twin fits them; more runs there (--confirm-rounds) decide it"
                      % lean.words())
     return status, ". ".join(parts) + "."
+
+
+def _found_words(added, eff_se, parameters, cal, final) -> str:
+    """The effects added, each with its strength, se and interval, and the chi2/dof they
+    bring."""
+    found = []
+    for k, s in added.items():
+        c = candidates()[k]
+        found.append("%s (%s = %.3g +- %.2g%s)" % (k, c.strength_label, s, eff_se[k],
+                                                  _interval_words(parameters, k)))
+    return ("missing effect%s: %s; chi2/dof %.2f -> %.2f"
+            % ("s" if len(added) > 1 else "", "; ".join(found), cal.chi2_dof, final.chi2_dof))
+
+
+def _tie_words(diags) -> list:
+    """A sentence per candidate as good as the one added at its step."""
+    out = []
+    for d in diags:
+        if d.best is None:
+            continue
+        t = d.table
+        b = t[t["effect"] == d.best].iloc[0]
+        ties = t[t["significant"] & (t["effect"] != d.best)
+                 & (b["delta_chi2"] - t["delta_chi2"] < TIE_DELTA_CHI2)]
+        for _, o in ties.iterrows():
+            out.append("%s explains the data about as well as %s (chi2 gain %.1f "
+                       "against %.1f): the data cannot tell them apart"
+                       % (o["effect"], d.best, o["delta_chi2"], b["delta_chi2"]))
+    return out
+
+
+def _nothing_words(cal, status) -> str:
+    """No effect added: nothing missing, or a misfit no candidate explains."""
+    head = ("calibrated chi2/dof %.2f (dof %d)" % (cal.chi2_dof, cal.dof) if cal.dof > 0 else
+            "calibrated chi2/dof untestable (dof %d: no more observations than fitted "
+            "parameters)" % cal.dof)
+    if status == "nothing_missing":
+        return "nothing missing: no candidate effect is significant; %s" % head
+    return "no candidate effect explains the misfit (%s, p = %.2g)" % (head, cal.p_value)
+
+
+def _dropped_words(d) -> str:
+    """An effect backward elimination dropped, and after which runs."""
+    what = ("the runs at the intervals' ends" if str(d.get("wave", "")).startswith(
+        "interval") else "the twin reruns")
+    return ("%s, named before %s, dropped after them: on the emulator refitted with their "
+            "runs it gains chi2 %.1f, %.1f needed"
+            % (d["effect"], what, d["delta_chi2"], d["needed"]))
+
+
+def _held_words(model, dataset) -> str:
+    """The base parameters the model holds, and why (a stroke the dataset states)."""
+    from analysis.report.loop_words import stated_stroke_words
+    held = []
+    stroke = stated_stroke_words(getattr(dataset, "conditions", None))
+    for k, reason in model.held.items():
+        if k == "amplitude_m" and stroke:
+            held.append("the stroke as the dataset states it (amplitude_mm %s), not "
+                        "fitted" % stroke)
+        else:
+            held.append("%s held at %.4g (%s)"
+                        % (k, float(model.theta_ref.get(k, np.nan)), reason))
+    return "; ".join(held)
+
+
+def _loose_words(model, added, final, eff_se, parameters) -> list:
+    """The parameters the data leave about as uncertain as the prior (the report's rule),
+    each with its spread and the prior's sd."""
+    from analysis.report.loop_words import is_constrained, prior_sd, spread_of
+    try:
+        bounds = {p.name: (p.lower, p.upper) for p in model.base_params()}
+    except (AttributeError, TypeError):
+        bounds = {}
+    cands = candidates()
+    bounds.update({k: (0.0, float(cands[k].s_max)) for k in added if k in cands})
+    priors = getattr(model, "priors", None) or {}
+    ivs = ({} if parameters is None or "profile_lo" not in parameters else
+           {r["name"]: (r["profile_lo"], r["profile_hi"]) for r in parameters.to_dict("records")})
+    loose = []
+    for k in bounds:
+        se = float(final.stderr.get(k, np.nan)) if k not in added else float(
+            eff_se.get(k, np.nan))
+        lo, hi = (float(v) for v in ivs.get(k, (np.nan, np.nan)))
+        sd = prior_sd(k, bounds, priors)
+        if np.isfinite(sd) and sd > 0 and not is_constrained(se, sd, lo, hi):
+            loose.append("%s (spread %.2g for a prior sd %.2g)" % (k, spread_of(se, lo, hi),
+                                                                   sd))
+    return loose
 
 
 # --------------------------------------------------------------------------- output
