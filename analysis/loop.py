@@ -1391,15 +1391,28 @@ def with_assumed_v_sd(dataset, v_rel_sd):
     return dataclasses.replace(dataset, summary=summ)
 
 
-def _interval_words(parameters, name):
-    """', 95 % interval lo-hi' from the parameters table's profile interval ('' without)."""
+#: a profile interval this many times wider than +- 1.96 se: the likelihood is not quadratic
+#: there and the verdict says the se understates the uncertainty
+SE_UNDERSTATES_RATIO = 3.0
+
+
+def _interval_words(parameters, name, se=np.nan):
+    """', 95 % interval lo-hi' from the parameters table's profile interval ('' without); when
+    the interval is :data:`SE_UNDERSTATES_RATIO` or more times wider than +- 1.96 ``se`` (the
+    curvature's at the optimum: a likelihood far from quadratic, e.g. where the twin's motion
+    mode flips), the words say so and that the interval is the one to quote."""
     if parameters is None or "profile_lo" not in parameters:
         return ""
     r = parameters[parameters["name"] == name]
     if not len(r) or not np.isfinite(float(r["profile_lo"].iloc[0])):
         return ""
-    return ", 95 %% interval %.3g-%.3g" % (float(r["profile_lo"].iloc[0]),
-                                          float(r["profile_hi"].iloc[0]))
+    lo, hi = float(r["profile_lo"].iloc[0]), float(r["profile_hi"].iloc[0])
+    words = ", 95 %% interval %.3g-%.3g" % (lo, hi)
+    ratio = (hi - lo) / (2 * 1.96 * se) if se > 0 else np.nan
+    if ratio >= SE_UNDERSTATES_RATIO:
+        words += (" - %.0f times wider than +- 1.96 se: the likelihood is not quadratic there "
+                  "and the se understates the uncertainty; quote the interval" % ratio)
+    return words
 
 
 def rerun_words(rr, final, alpha=None, added=(), fake=False):
@@ -1510,7 +1523,7 @@ def _found_words(added, eff_se, parameters, cal, final) -> str:
     for k, s in added.items():
         c = candidates()[k]
         found.append("%s (%s = %.3g +- %.2g%s)" % (k, c.strength_label, s, eff_se[k],
-                                                  _interval_words(parameters, k)))
+                                                  _interval_words(parameters, k, eff_se[k])))
     return ("missing effect%s: %s; chi2/dof %.2f -> %.2f"
             % ("s" if len(added) > 1 else "", "; ".join(found), cal.chi2_dof, final.chi2_dof))
 

@@ -329,6 +329,20 @@ def test_loop_budget_and_dry_run(fake_dataset, tmp_path, capsys):
     assert set(p.name for p in config.FAKE_RUNS_DIR.iterdir()) == before   # nothing ran
 
 
+def test_interval_words_say_when_the_curvature_se_understates():
+    """The verdict quotes the profile interval; where it is 3 or more times wider than
+    +- 1.96 se (a likelihood far from quadratic) it says the se understates."""
+    p = pd.DataFrame({"name": ["x"], "profile_lo": [0.6], "profile_hi": [1.5]})
+    assert loop._interval_words(p, "x", 0.2) == ", 95 % interval 0.6-1.5"
+    assert loop._interval_words(p, "x", 0.08) == ", 95 % interval 0.6-1.5"    # 2.9 times
+    w = loop._interval_words(p, "x", 0.003)
+    assert w.startswith(", 95 % interval 0.6-1.5 - 77 times wider than +- 1.96 se")
+    assert "quote the interval" in w
+    assert loop._interval_words(p, "x") == ", 95 % interval 0.6-1.5"          # no se
+    assert loop._interval_words(None, "x", 0.1) == ""
+    assert loop._interval_words(p.assign(profile_lo=np.nan), "x", 0.1) == ""
+
+
 def test_a_ball_larger_than_the_jar_is_refused_before_any_run(fake_dataset, tmp_path, capsys):
     """A condition whose ball cannot move in the jar (the scene's rule): one error naming the
     file, row and column, exit 2, no run and no output folder."""
