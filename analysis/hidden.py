@@ -120,7 +120,7 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
     """
     from effects import load_effects
     from analysis import kinetics
-    from analysis.measurements import load_dataset
+    from analysis.measurements import Dataset, load_dataset
     if replicates < 1 or v_rel_sd < 0 or f_col_sd_hz < 0 or yield_sd_pct < 0:
         raise ValueError("replicates must be >= 1 and noise sds >= 0")
     if any(not np.isfinite(t) or t <= 0 for t in yield_times_min):
@@ -163,7 +163,6 @@ def make_hidden_dataset(name, effects, *, conditions=None, replicates=2, v_rel_s
                            "noise; its truth is kept apart (results/hidden/%s.truth.json)" % name,
             "source": "analysis.hidden (SYNTHETIC)", "velocity_frame": "lab", "synthetic": True}
     cond = conditions[["condition_id", "frequency_hz", "ball_diameter_mm"]].copy()
-    from analysis.measurements import Dataset
     ds = Dataset(name=name, description=meta["description"], source=meta["source"],
                  velocity_frame="lab", conditions=cond, summary=summary, yields=yields,
                  meta=meta, tracks=track_tables)
