@@ -49,7 +49,7 @@ yade:
 	fi
 
 test: setup
-	$(VPY) -m pytest -q -n 2 tests
+	$(VPY) -m pytest -q -n 2 --dist loadgroup tests
 
 test-fast: venv
 	$(VPY) -m pytest -q -m "not yade and not slow" tests

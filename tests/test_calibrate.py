@@ -27,6 +27,7 @@ def test_load_paper_table3():
     assert (meas["f_col_hz"] == 2 * meas["frequency_hz"]).all()
 
 
+@pytest.mark.slow
 def test_calibration_on_the_loops_emulator_covers_the_truth(tmp_path):
     """FAKE data at 8 conditions made at a known contact set and stroke: the posterior sampled
     on the loop's emulator (after its waves, focus wave and twin rerun) holds every true value
@@ -134,6 +135,7 @@ def test_cli_free_and_set_clash_or_unknown_is_exit_2_without_output(tmp_path, ca
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_identification_page_and_profile_from_a_calibration(tmp_path, capsys):
     """A calibration with an apparatus parameter free and a base profile (FAKE twin, small
     budget) -> the fixed keys recorded (the profile's, less the freed ones), the study page,

@@ -179,6 +179,7 @@ def test_fake_runs_carry_impact_observables(tmp_path):
     assert (a.loc[ids[0]] != a.loc[ids[1]]).all()                     # its chaos
 
 
+@pytest.mark.slow
 def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
     """A dataset whose tracks carry the jar (the impact observables): the --fake loop fits
     them too (it stopped at 'no run has every emulated observable finite'); its emulator fits
@@ -204,6 +205,7 @@ def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
                                "z_calibrated", "final", "z_final", "motion_mode_final"]
 
 
+@pytest.mark.slow
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     out = tmp_path / "out"
     # --workers 2: the fake twin's runs and the bootstrap draws in two processes each
@@ -623,6 +625,7 @@ def test_emulator_vs_twin_covers_an_honest_emulator_and_flags_a_biased_one():
     assert out["n"] == len(keys) and out["max_abs_z"] == pytest.approx(6.0)
 
 
+@pytest.mark.slow
 def test_a_rerun_beyond_the_emulator_gets_a_focus_wave_before_the_next(tmp_path):
     """Stop rule of the confirmation: a first rerun the emulator cannot have predicted (the
     twin's speeds 15 % up in that rerun only) fails the emulator-vs-twin check, so a focus
@@ -879,6 +882,7 @@ def test_the_focus_waves_ridge_is_the_profile_of_the_base_parameters():
     np.testing.assert_allclose(on["amplitude_m"], 0.012, rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_a_freed_apparatus_parameter_is_calibrated_with_the_contact_parameters(tmp_path):
     """--free jar_fillet_radius_m: the fillet becomes a design input over its declared prior
     (or LO:HI), starts at the runs' own jar, and is fitted with the base parameters; on FAKE
@@ -987,6 +991,7 @@ def test_lean_separates_the_emulators_ignorance_from_a_fit():
     assert known.undecided == ()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("leans", [True, False])
 def test_a_point_that_leans_on_the_emulator_is_refined_before_it_is_final(tmp_path, monkeypatch,
                                                                           leans):
@@ -1038,6 +1043,7 @@ def test_a_point_that_leans_on_the_emulator_is_refined_before_it_is_final(tmp_pa
         assert leaning is (not res.info["final_lean"]["sure"])
 
 
+@pytest.mark.slow
 def test_the_intervals_ends_are_run_and_the_intervals_redone(fake_dataset, tmp_path,
                                                              monkeypatch):
     """The interval stage with a twin: each closed end of a design input's interval gets a

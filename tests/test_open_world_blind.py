@@ -44,6 +44,7 @@ def test_blind_effect_at_new_conditions_is_found_from_committed_runs():
     assert st["chi2_dof"].iloc[-1] < st.loc[st["stage"] == "calibrated", "chi2_dof"].iloc[0]
 
 
+@pytest.mark.slow
 def test_kinetics_effect_is_named_first(tmp_path):
     """A kinetics effect hidden in yields (an induction period of 900 J) at new conditions, on
     the FAKE twin (the yields follow from its speeds and rates through the law, as the real
@@ -133,6 +134,7 @@ def test_truth_observations_are_the_twins_own_values():
         "v_mean_m_s", "f_col_hz", "yield_pct@2.5min", "v_mean_m_s", "static_friction"]
 
 
+@pytest.mark.slow
 def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_path):
     """Detectability is the chi2 the hidden effects explain in the twin's values at the truth:
     the no-effect fit's chi2 less the fit's with them on at their true strengths. Values the
@@ -550,6 +552,7 @@ def test_the_figure_draws_the_interval_the_summary_scored():
                                 [0.75, 0.4 / 0.6, 0.3804 / 0.6, 0.4196 / 0.6]])
 
 
+@pytest.mark.slow
 def test_the_rerun_is_scored_against_its_own_mode_and_a_shifted_rerun_fails(tmp_path):
     """rerun_own_mode refits the loop's emulator without the last rerun and scores that
     rerun's runs against it: on the analytic twin the emulator's stated uncertainty covers its

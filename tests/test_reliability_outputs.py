@@ -611,6 +611,7 @@ def test_the_design_builds_no_config_outside_the_bounds():
     assert len(runs) == 2 * 40 + 2 * 2
 
 
+@pytest.mark.slow
 def test_dry_run_counts_the_runs_the_loop_then_makes(fake_dataset, tmp_path, monkeypatch,
                                                      capsys):
     """With no refinement wave and one rerun the dry run's total is exact (wave 0, the focus
@@ -645,6 +646,7 @@ def test_a_failing_twin_run_is_one_line_and_not_the_bad_input_code(work, monkeyp
     assert not (work / "lo").exists()
 
 
+@pytest.mark.slow
 def test_a_design_point_the_twin_cannot_run_is_left_out(fake_dataset, tmp_path, monkeypatch,
                                                          capsys):
     """Fault injection: the twin fails at one wave-0 design point (the top restitution stratum

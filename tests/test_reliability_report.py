@@ -90,6 +90,8 @@ def fake_loop(tmp_path_factory):
     return out, ds
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("fake_loop")
 def test_fake_loop_json_is_strict_and_marked(fake_loop):
     out, _ = fake_loop
     info = _strict_json(out / "loop.json")          # NaN / Infinity would raise
@@ -100,6 +102,8 @@ def test_fake_loop_json_is_strict_and_marked(fake_loop):
     assert all(c["amplitude_mm"] == STATED_MM for c in info["conditions"])
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("fake_loop")
 def test_fake_loop_marks_every_page_and_figure(fake_loop):
     out, _ = fake_loop
     page = (out / "report.md").read_text()
@@ -111,6 +115,8 @@ def test_fake_loop_marks_every_page_and_figure(fake_loop):
         assert "FAKE" in im.text.get("Description", "")
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("fake_loop")
 def test_stated_stroke_is_reported_as_stated(fake_loop):
     out, _ = fake_loop
     par = pd.read_csv(out / "parameters.csv").set_index("name")
@@ -125,6 +131,8 @@ def test_stated_stroke_is_reported_as_stated(fake_loop):
     assert "| amplitude_m | held | 0.012 |" in page
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("fake_loop")
 def test_candidates_are_ordered_by_shown_columns_and_test_as_applied(fake_loop):
     out, _ = fake_loop
     d = pd.read_csv(out / "diagnosis.csv")
@@ -155,6 +163,8 @@ def test_candidates_are_ordered_by_shown_columns_and_test_as_applied(fake_loop):
                 >= s["applied_delta_chi2"] - 1e-9).all()
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("fake_loop")
 def test_fake_loop_staircase_is_explained(fake_loop):
     out, _ = fake_loop
     page = (out / "report.md").read_text()
@@ -377,6 +387,8 @@ def test_index_renders_every_folder(tmp_path):
     assert "[mystery](mystery/)" in text and "runs_fake](" not in text
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("fake_loop")
 def test_unconstrained_parameters_are_named_in_the_verdict_and_page(fake_loop):
     out, _ = fake_loop
     info = _strict_json(out / "loop.json")
