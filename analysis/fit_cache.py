@@ -35,6 +35,12 @@ from analysis.config import DATA_DIR
 
 #: the cache's folder inside a twin-runs folder
 FOLDER = "emulator_fits"
+#: the bootstrap draws' outcomes of the loop's diagnosis steps, beside it
+#: (:func:`analysis.loop.null_scale`)
+DRAWS_FOLDER = "bootstrap_draws"
+#: the source whose change makes every cached bootstrap outcome a miss
+SOURCE_DIRS = ("analysis", "effects", "geometry", "yade_scripts")
+_ROOT = Path(__file__).resolve().parents[1]
 #: the committed fits of make demo's loops (read only; data/twin_runs/README.md)
 COMMITTED_FITS = DATA_DIR / "twin_runs" / FOLDER
 
@@ -158,6 +164,43 @@ class FitCache:
                 tmp.write_text(json.dumps(found))
         except OSError:
             pass
+
+
+def code_fingerprint() -> str:
+    """Hash of the project's Python source (:data:`SOURCE_DIRS`) and the numerical libraries'
+    versions: an outcome cached by other code is a miss. Read once per process."""
+    global _CODE
+    if _CODE is None:
+        import pandas
+        h = hashlib.sha256(repr((np.__version__, scipy.__version__, sklearn.__version__,
+                                 pandas.__version__)).encode())
+        for d in SOURCE_DIRS:
+            for f in sorted((_ROOT / d).rglob("*.py")):
+                h.update(str(f.relative_to(_ROOT)).encode())
+                h.update(f.read_bytes())
+        _CODE = h.hexdigest()
+    return _CODE
+
+
+_CODE = None
+
+
+def digest(*parts) -> str:
+    """Hash of ``parts``: tables by their CSV text (every digit), arrays by dtype, shape and
+    bytes, anything else by its repr."""
+    import pandas
+    h = hashlib.sha256()
+    for p in parts:
+        if isinstance(p, (pandas.DataFrame, pandas.Series)):
+            h.update(p.to_csv().encode())
+        elif isinstance(p, np.ndarray):
+            a = np.ascontiguousarray(p)
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(a.tobytes())
+        else:
+            h.update(repr(p).encode())
+        h.update(b"\x00")
+    return h.hexdigest()[:32]
 
 
 def is_fit_file(path) -> bool:

@@ -423,8 +423,60 @@ def _null_draw(w, o, base_params, effs, alpha, noise_observables, conditions):
     return (float(t["delta_chi2"].max()) if len(t) else 0.0), d.best is not None
 
 
+def _null_draws(w, obs, mu, sig, chol, args, seed, n_draws, n_jobs, progress) -> list:
+    """The bootstrap's draws about ``mu`` (noise ``sig``, or ``chol`` @ z where the emulator's
+    errors correlate), each diagnosed: [(largest gain, an effect named)]."""
+    from tqdm.auto import tqdm
+    rng = np.random.default_rng(seed)
+    noise = (lambda z: sig * z) if chol is None else (lambda z: chol @ z)
+    draws = [obs.assign(value=mu + noise(rng.standard_normal(len(mu))))
+             for _ in range(int(n_draws))]
+    if int(n_jobs) > 1 and len(draws) > 1:
+        from joblib import Parallel, delayed
+        out = Parallel(n_jobs=min(int(n_jobs), len(draws)), return_as="generator")(
+            delayed(_null_draw)(w, o, *args) for o in draws)
+    else:
+        out = (_null_draw(w, o, *args) for o in draws)
+    return list(tqdm(out, total=len(draws), desc="bootstrap draws", unit="draw",
+                     disable=not progress, leave=False))
+
+
+@dataclass(frozen=True)
+class DrawsCache:
+    """Where a loop keeps its diagnosis steps' bootstrap outcomes (:func:`null_scale`):
+    ``store``, a :class:`analysis.fit_cache.FitCache` in ``<runs dir>/bootstrap_draws``, and
+    ``context``, the hash of what made the model (the loop's settings, the conditions, the
+    runs the emulator was fitted to: :func:`draws_cache`)."""
+
+    store: object
+    context: str
+
+
+def draws_cache(state) -> DrawsCache | None:
+    """The :class:`DrawsCache` of a loop whose emulator fits are cached (None otherwise)."""
+    from analysis.fit_cache import DRAWS_FOLDER, FitCache, digest
+    fits = getattr(state.model, "fit_cache", None)
+    if fits is None:
+        return None
+    return DrawsCache(FitCache(fits.folder.parent / DRAWS_FOLDER),
+                      digest(dataclasses.replace(state.settings, n_jobs=1),
+                             state.dataset.conditions, state.model.runs_))
+
+
+def _draws_key(context, obs, w, args, seed, n_draws, mu, sig, chol) -> str:
+    """The hash a step's bootstrap outcomes are kept under: the code, what made the model
+    (``context``), the observations, the point and the added effects, the candidates, the
+    test's settings, the seed and number of draws, and the calibrated fit's mean and noise."""
+    from analysis.fit_cache import code_fingerprint, digest
+    base_params, effs, alpha, noise_obs, conditions = args
+    return digest("bootstrap draws", code_fingerprint(), context, obs,
+                  sorted(w.added.items()), sorted((w.theta or {}).items()),
+                  list(base_params), list(effs), alpha, sorted(noise_obs or ()), conditions, int(seed), int(n_draws),
+                  mu, sig, chol)
+
+
 def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observables,
-               conditions, seed=0, n_jobs=1, progress=False):
+               conditions, seed=0, n_jobs=1, progress=False, cache=None):
     """Parametric bootstrap of one diagnosis step: ``n_draws`` datasets drawn from the step's
     calibrated fit (no further effect; Gaussian noise with the stated sigma) are diagnosed like
     the real one. Returns (c, null_max, n_false): c >= 1 scales the nominal chi2-gain threshold
@@ -432,26 +484,23 @@ def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observa
     over each strength's range and the bounds add to chance (look-elsewhere); n_false counts
     the draws in which an effect was significant at the nominal level. ``n_jobs`` > 1
     diagnoses the draws in that many processes (the same draws, the same answer);
-    ``progress``: a bar over the draws on stderr."""
-    from tqdm.auto import tqdm
-    rng = np.random.default_rng(seed)
+    ``progress``: a bar over the draws on stderr. ``cache`` (a :class:`DrawsCache`): the
+    draws' outcomes are kept under a hash of everything they depend on and read back when
+    the same step comes again (a resumed loop)."""
     cal = diag.calibrated
     key = pd.MultiIndex.from_frame(obs[["condition_id", "observable"]])
     mu = cal.prediction.reindex(key).to_numpy(float)
     sig = np.asarray(cal.sigma, float)
-    # the draws' noise as the fit's likelihood states it (the emulator's errors correlated)
-    noise = (lambda z: sig * z) if cal.chol is None else (lambda z: cal.chol @ z)
-    draws = [obs.assign(value=mu + noise(rng.standard_normal(len(mu))))
-             for _ in range(int(n_draws))]
     args = (base_params, effs, alpha, noise_observables, conditions)
-    if int(n_jobs) > 1 and len(draws) > 1:
-        from joblib import Parallel, delayed
-        out = Parallel(n_jobs=min(int(n_jobs), len(draws)), return_as="generator")(
-            delayed(_null_draw)(w, o, *args) for o in draws)
+    ck = None if cache is None else _draws_key(cache.context, obs, w, args, seed, n_draws,
+                                                mu, sig, cal.chol)
+    hit = None if ck is None else cache.store.get(ck)
+    if hit is not None and len(hit.get("outcomes") or ()) == int(n_draws):
+        out = [(float(g), bool(b)) for g, b in hit["outcomes"]]
     else:
-        out = (_null_draw(w, o, *args) for o in draws)
-    out = list(tqdm(out, total=len(draws), desc="bootstrap draws", unit="draw",
-                    disable=not progress, leave=False))
+        out = _null_draws(w, obs, mu, sig, cal.chol, args, seed, n_draws, n_jobs, progress)
+        if ck is not None:
+            cache.store.put(ck, {"outcomes": [[g, bool(b)] for g, b in out]})
     null_max = [g for g, _ in out]
     n_false = sum(int(b) for _, b in out)
     k = max(int(diag.table["identifiable"].sum()), 1)
@@ -476,7 +525,8 @@ class Selection:
 
 
 def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effects=MAX_EFFECTS,
-                   noise_observables=None, log=print, null_draws=0, n_jobs=1, progress=False):
+                   noise_observables=None, log=print, null_draws=0, n_jobs=1, progress=False,
+                   draws=None):
     """Forward selection of effects on a model with ``predict``, ``model_se``, ``base_params``
     and ``effects`` (:class:`analysis.emulated_twin.TwinModelContract`): diagnose, add the
     best significant effect (its strength joins the fitted
@@ -487,7 +537,8 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
 
     With ``null_draws`` > 0 an effect must also beat the nominal threshold scaled by
     :func:`null_scale` (the significance calibrated on data drawn from the fitted model).
-    ``progress``: a bar per step over the candidates' fits and one over the bootstrap draws.
+    ``progress``: a bar per step over the candidates' fits and one over the bootstrap draws;
+    ``draws``: a :class:`DrawsCache` of the bootstrap's outcomes.
     """
     theta = dict(theta)
     added, diags, step_rows, stairs, last_fit = {}, [], [], [], None
@@ -516,7 +567,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
             c, nm, nf = null_scale(diag, w, obs, fitted_parameters(model, theta, added), effs,
                                    n_draws=null_draws, alpha=alpha, conditions=conditions,
                                    noise_observables=noise_observables, seed=step,
-                                   n_jobs=n_jobs, progress=progress)
+                                   n_jobs=n_jobs, progress=progress, cache=draws)
             nulls.append({"step": step, "scale": c, "null_max_delta_chi2": nm,
                           "n_false": nf, "n_draws": null_draws})
             t["threshold_scale"] = scale = c
@@ -768,7 +819,7 @@ def select_stage(state: LoopState, log=print):
                         conditions=state.dataset.conditions, alpha=s.alpha,
                         max_effects=s.max_effects, noise_observables=noise_observables(state),
                         log=log, null_draws=s.null_draws, n_jobs=s.n_jobs,
-                        progress=state.progress)
+                        progress=state.progress, draws=draws_cache(state))
     state.selection = fs
     state.set_point(fs.theta, fs.added)
     if fs.last_fit is not None:

@@ -146,6 +146,42 @@ def test_forward_selection_shows_its_progress_on_stderr(capsys):
     assert shown.added == quiet.added and shown.null == quiet.null
 
 
+def test_a_steps_bootstrap_is_read_back_when_the_same_step_comes_again(tmp_path, monkeypatch):
+    """A resumed loop does not draw its bootstrap again: the outcomes are kept under a hash of
+    everything they depend on and read back bit for bit; another observation, another model
+    (its context), other code or a broken file is a miss, drawn anew."""
+    from analysis import fit_cache
+    m = ToyModel()
+    obs = _toy_obs(m, {"E1": 0.3}, 0.01, 0)
+
+    def select(o, context="model 1"):
+        cache = loop.DrawsCache(fit_cache.FitCache(tmp_path / "draws"), context)
+        return loop.forward_select(m, o, {"a": 2.0, "b": 0.3}, log=lambda s: None,
+                                   null_draws=4, draws=cache)
+    first = select(obs)
+    assert len(first.null) >= 1 and len(list((tmp_path / "draws").glob("*.json"))) == \
+        len(first.null)
+
+    def no_draw(*a, **k):
+        raise AssertionError("drawn again")
+    real = loop._null_draw
+    monkeypatch.setattr(loop, "_null_draw", no_draw)
+    again = select(obs)
+    assert again.null == first.null and again.added == first.added
+    moved = obs.assign(value=obs["value"] * (1 + 1e-9))
+    for miss in (lambda: select(moved), lambda: select(obs, "model 2")):
+        with pytest.raises(AssertionError, match="drawn again"):
+            miss()
+    monkeypatch.setattr(fit_cache, "_CODE", "other code")
+    with pytest.raises(AssertionError, match="drawn again"):
+        select(obs)
+    monkeypatch.setattr(fit_cache, "_CODE", None)
+    for f in (tmp_path / "draws").glob("*.json"):
+        f.write_text("{")
+    monkeypatch.setattr(loop, "_null_draw", real)
+    assert select(obs).null == first.null
+
+
 # --------------------------------------------------------------------------- the command
 
 @pytest.fixture
@@ -288,11 +324,21 @@ def test_each_stage_on_its_own_hands_on_a_typed_point(fake_dataset, tmp_path):
     from analysis.parameter_space import ParameterVector, declared_unit
     s = loop.LoopSettings(points=10, waves=0, focus_points=0, null_draws=0, rerun=False,
                           intervals=False, max_effects=1)
-    state = loop.read_stage(load_dataset(fake_dataset), s, log=lambda m: None)
+    from analysis.fit_cache import FitCache
+    state = loop.read_stage(load_dataset(fake_dataset), s, log=lambda m: None,
+                            fit_cache=FitCache.beside(tmp_path / "fake_runs"))
     assert state.theta is None and state.obs is None
     twin = TwinRuns(runner=run_fake_twin, runs_dir=tmp_path / "fake_runs", workers=1,
                     progress=False)
     loop.build_stage(state, twin, log=lambda m: None)
+    # the bootstrap's outcomes are kept beside the runs, under what made this model
+    draws = loop.draws_cache(state)
+    assert draws.store.folder == tmp_path / "fake_runs" / "bootstrap_draws"
+    runs = state.model.runs_
+    state.model.fit(runs.iloc[:-1])
+    assert loop.draws_cache(state).context != draws.context
+    state.model.fit(runs)
+    assert loop.draws_cache(state).context == draws.context
     assert state.obs is not None and len(state.model.runs_) >= 10
     loop.calibrate_stage(state)
     assert isinstance(state.theta, ParameterVector)
