@@ -471,8 +471,8 @@ def _draws_key(context, obs, w, args, seed, n_draws, mu, sig, chol) -> str:
     base_params, effs, alpha, noise_obs, conditions = args
     return digest("bootstrap draws", code_fingerprint(), context, obs,
                   sorted(w.added.items()), sorted((w.theta or {}).items()),
-                  list(base_params), list(effs), alpha, sorted(noise_obs or ()), conditions, int(seed), int(n_draws),
-                  mu, sig, chol)
+                  list(base_params), list(effs), alpha, sorted(noise_obs or ()), conditions,
+                  int(seed), int(n_draws), mu, sig, chol)
 
 
 def null_scale(diag, w, obs, base_params, effs, *, n_draws, alpha, noise_observables,
