@@ -136,9 +136,7 @@ class FitCache:
         h.update(repr((kind, sklearn.__version__, repr(kernel), sorted(settings.items())))
                  .encode())
         for a in (kernel.theta, kernel.bounds) + arrays:
-            a = np.ascontiguousarray(a)
-            h.update(repr((a.dtype.str, a.shape)).encode())
-            h.update(a.tobytes() if a.dtype != object else repr(a.tolist()).encode())
+            _hash_array(h, a)
         return h.hexdigest()[:32]
 
     def get(self, key: str, kind=dict):
@@ -194,13 +192,18 @@ def digest(*parts) -> str:
         if isinstance(p, (pandas.DataFrame, pandas.Series)):
             h.update(p.to_csv().encode())
         elif isinstance(p, np.ndarray):
-            a = np.ascontiguousarray(p)
-            h.update(repr((a.dtype.str, a.shape)).encode())
-            h.update(a.tobytes())
+            _hash_array(h, p)
         else:
             h.update(repr(p).encode())
         h.update(b"\x00")
     return h.hexdigest()[:32]
+
+
+def _hash_array(h, a) -> None:
+    """Feed an array to hash ``h``: its dtype, shape and bytes (an object array's values)."""
+    a = np.ascontiguousarray(a)
+    h.update(repr((a.dtype.str, a.shape)).encode())
+    h.update(a.tobytes() if a.dtype != object else repr(a.tolist()).encode())
 
 
 def is_fit_file(path) -> bool:
