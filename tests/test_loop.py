@@ -189,7 +189,10 @@ def test_a_steps_bootstrap_is_read_back_when_the_same_step_comes_again(tmp_path,
 
 @pytest.fixture
 def fake_dataset(tmp_path, monkeypatch):
-    """A hidden-effect dataset from the FAKE twin at conditions the paper never ran."""
+    """A hidden-effect dataset from the FAKE twin at conditions the paper never ran: a jar
+    compliance at f_n 85 Hz, too weak to name at these six conditions and noise (the loop says
+    'nothing missing'; at 60 Hz, beyond the compliance's range, it costs the contract test seven
+    times the CPU)."""
     from analysis.hidden import make_hidden_dataset
     monkeypatch.setattr("analysis.config.FAKE_RUNS_DIR", tmp_path / "fake_runs")
     ds, truth = make_hidden_dataset(
@@ -247,7 +250,9 @@ def test_fake_loop_runs_on_a_dataset_with_jar_tracks(tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     out = tmp_path / "out"
-    # --workers 2: the fake twin's runs and the bootstrap draws in two processes each
+    # --workers 2: the fake twin's runs in two processes (the compliance hidden at 85 Hz is
+    # not named at these six conditions, so no bootstrap is drawn here: its draws in two
+    # processes are tested on forward_select above)
     rc = loop.main(["--dataset", str(fake_dataset), "--out", str(out), "--fake",
                     "--null-draws", "2"] + SMALL[:-2] + ["--workers", "2"])
     assert rc == 0
@@ -294,7 +299,7 @@ def test_loop_command_writes_its_contract(fake_dataset, tmp_path, capsys):
     info = json.loads((out / "loop.json").read_text())
     assert info["conditions"][0]["label"] == "15 mm ball at 20 Hz"
     assert info["settings"]["n_jobs"] == 2
-    assert all(len(b["null_max_delta_chi2"]) == 2 for b in info["bootstrap"])
+    assert info["bootstrap"] == [] and not d["significant"].any()
     assert info["model"] == "emulator" and info["new_runs"] == len(runs)
     assert info["fake_twin"] is True
     # the FAKE twin has one mode ("fake"): one emulator per observable, every run in it
