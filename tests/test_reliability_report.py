@@ -85,7 +85,8 @@ def fake_loop(tmp_path_factory):
         mp.setattr("analysis.config.FAKE_RUNS_DIR", tmp / "fake_runs")
         rc = loop.main(["--dataset", str(ds), "--out", str(out), "--fake", "--workers", "1",
                         "--rerun-replicates", "2", "--null-draws", "3", "--points", "12",
-                        "--waves", "1", "--per-wave", "4", "--confirm-rounds", "2"])
+                        "--waves", "1", "--per-wave", "4", "--confirm-rounds", "2",
+                        "--interval-rounds", "1"])
     assert rc == 0
     return out, ds
 
