@@ -2047,6 +2047,8 @@ def prepare(a):
     physics_table(ds.conditions, conditions_file(ds))
     check_balls_fit(ds, base_config)
     pinned_observation(ds)              # a stated chain outside its bounds: before any run
+    from analysis.videos import check_films
+    check_films(ds)                     # every film opens and decodes: before any tracking
     if a.v_rel_sd is not None:
         ds = with_assumed_v_sd(ds, a.v_rel_sd)
     _, max_effects = dof_limits(ds, a.max_effects, extra, free)

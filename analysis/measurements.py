@@ -1130,10 +1130,13 @@ def main(argv=None):
     ap.add_argument("dataset", help="dataset folder data/measurements/<name>/")
     args = ap.parse_args(argv)
     from analysis.conditions import ConditionError, physics_table
+    from analysis.tracking.errors import VideoReadError
     try:
         ds = load_dataset(args.dataset)
         physics_table(ds.conditions, conditions_file(ds))   # one ball, distinct physics
-    except (DatasetError, ConditionError) as exc:
+        from analysis.videos import check_films
+        check_films(ds)                                     # each film opens and decodes
+    except (DatasetError, ConditionError, VideoReadError) as exc:
         print("analysis.measurements: error: %s" % exc, file=sys.stderr)
         return 2
     for line in input_warnings(ds):

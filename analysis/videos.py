@@ -33,6 +33,23 @@ def file_hash(path, chunk=1 << 20) -> str:
     return h.hexdigest()[:16]
 
 
+def check_films(dataset) -> None:
+    """Open every film the loop would track (a condition without a track) and decode its first
+    frame: an unreadable or empty film is one VideoReadError naming the file before any
+    tracking or twin run, not after the films before it were tracked."""
+    from analysis.tracking.errors import VideoReadError
+    from analysis.tracking.video import iter_gray, open_video
+    for cid, f in sorted(dataset.video_files.items()):
+        if cid in dataset.tracks:
+            continue
+        cap = open_video(f)
+        try:
+            if next(iter_gray(cap), None) is None:
+                raise VideoReadError("%s: no decodable frame (empty or corrupt video)" % f)
+        finally:
+            cap.release()
+
+
 def track_dataset_videos(dataset, cache_dir=None, progress=True, force=False):
     """Track every film of ``dataset`` whose condition has no track.
 

@@ -359,3 +359,28 @@ def test_cli_refuses_what_the_twin_cannot_run(ds_dir, capsys):
     assert err.count("\n") == 1 and "describe the same physics" in err
     n = len(text.splitlines())          # the first data row and its twin, the new last one
     assert "%s, rows 1 and %d (lines 2 and %d)" % (ds_dir / "conditions.csv", n, n + 1) in err
+
+
+@pytest.mark.parametrize("content, phrase", [
+    (b"not a film at all", "OpenCV cannot open it"),
+    (b"", "empty file")])
+def test_an_unreadable_film_is_refused_before_any_tracking(ds_dir, capsys, content, phrase):
+    """A film OpenCV cannot open is one error naming it - from the dataset check and from the
+    loop (its dry run too) - before any film is tracked or any run starts; the output folder
+    is not made."""
+    from analysis import loop
+    vdir = ds_dir / "videos"
+    vdir.mkdir()
+    (vdir / "video.json").write_text(json.dumps({"fps": 2134, "m_per_px": 3e-4}))
+    (vdir / "f30_d17.5.mp4").write_bytes(content)
+    assert load_dataset(ds_dir).video_files          # the loader only lists the films
+    assert main([str(ds_dir)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("analysis.measurements: error: ") and phrase in err
+    assert str(vdir / "f30_d17.5.mp4") in err
+    out = ds_dir.parent / "out"
+    for extra in (["--dry-run"], []):
+        rc = loop.main(["--dataset", str(ds_dir), "--out", str(out), "--fake"] + extra)
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert rc == 2 and phrase in err and str(vdir / "f30_d17.5.mp4") in err
+        assert not out.exists()
