@@ -217,6 +217,7 @@ def test_detectability_is_the_chi2_the_hidden_effects_explain_not_the_chaos(tmp_
     # an effect the loop never ran: the fit with it on is not measured, nor the bound
     runs.assign(**{"effect:powder_layer": 0.0}).to_csv(loop_dir / "model_runs.csv", index=False)
     assert np.isnan(_beyond_bound(m, obs, truth, loop_dir, {"powder_layer": 1.0}))
+    runs.to_csv(loop_dir / "model_runs.csv", index=False)    # the loop's own runs again
     made({})
     assert detectable_chi2(ds, truth, loop_dir) < 0.5
     # values the model cannot make at the truth (a speed 60 of its sds off): the model is
