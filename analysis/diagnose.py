@@ -84,6 +84,7 @@ Schwarz (1978) BIC.
 """
 from __future__ import annotations
 
+import functools
 import math
 import sys
 from dataclasses import dataclass, field
@@ -251,7 +252,6 @@ class Diagnosis:
     best : str or None, the reported effect
     verdict : str, plain words
     alpha : float; threshold_delta_chi2 : float (chi2 gain needed at the Bonferroni level)
-    n_predict_calls : int
     """
 
     table: pd.DataFrame
@@ -264,7 +264,6 @@ class Diagnosis:
     verdict: str
     alpha: float
     threshold_delta_chi2: float
-    n_predict_calls: int
     projected_signatures: pd.DataFrame = field(repr=False, default=None)
 
     def to_frame(self) -> pd.DataFrame:
@@ -442,7 +441,6 @@ class Problem:
             raise ValueError("effects: duplicate names")
         self.fixed = dict(fixed_effects or {})
         self.base_step_frac = base_step_frac
-        self.n_calls = 0
         self._cache = {}
         self._index_seen, self._indexer = None, None
         self.conditions = conditions
@@ -516,7 +514,6 @@ class Problem:
         eff = self._full_effects(effects)
         key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
         if key not in self._cache:
-            self.n_calls += 1
             out = self.predict(dict(theta), dict(eff))
             if not isinstance(out, pd.Series):
                 raise TypeError("predict must return a pandas Series indexed by "
@@ -542,7 +539,6 @@ class Problem:
         key = (tuple(sorted(theta.items())), tuple(sorted(eff.items())))
         hit = self._mix.get(key)
         if hit is None:
-            self.n_calls += 1
             if len(self._mix) >= 4096:
                 self._mix.clear()
             hit = self._mix[key] = self._mixture_of(self._modes_fn(dict(theta), eff))
@@ -949,7 +945,8 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
              conditions: pd.DataFrame | None = None, alpha: float = 0.01,
              min_footprint: float = 2.0, min_snr: float = 3.0,
              effect_step_frac: float = 0.25, base_step_frac: float = 1e-3,
-             structure: bool = True, noise_observables=None, progress=None) -> Diagnosis:
+             structure: bool = True, noise_observables=None, progress=None,
+             n_jobs: int = 1) -> Diagnosis:
     """Rank candidate effects by how well each explains the residual after calibration.
 
     Parameters
@@ -995,6 +992,9 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
         twin noise.
     progress : str or None
         a progress bar's label: a bar over the candidates' fits on stderr (None: no bar)
+    n_jobs : int
+        processes for the candidates' fits (one candidate each; the same answers for any
+        n_jobs: :func:`analysis.processes.in_processes`)
 
     Returns
     -------
@@ -1007,12 +1007,13 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     cal = prob.best_fit(theta0)
     noise = _FDNoise.of(prob, crn_correlation, noise_observables)
     rules = _Rules(alpha, min_footprint, min_snr, effect_step_frac)
-    from tqdm.auto import tqdm
-    rows, fits, sigs = [], {}, {}
-    for name, e in tqdm(prob.effects.items(), total=len(prob.effects), desc=progress or "",
-                        unit="candidate", disable=not progress, leave=False):
-        row, fits[name], sigs[name] = _test_candidate(prob, cal, name, e, noise, rules)
-        rows.append(row)
+    from analysis.processes import in_processes
+    tested = in_processes(functools.partial(_test_named, prob, cal, noise, rules),
+                          list(prob.effects.items()), n_jobs, progress or "", "candidate",
+                          bool(progress))
+    rows = [row for row, _, _ in tested]
+    fits = {name: fit for name, (_, fit, _) in zip(prob.effects, tested)}
+    sigs = {name: sig for name, (_, _, sig) in zip(prob.effects, tested)}
     table = _ranked(rows)
     threshold = float(stats.chi2.isf(2.0 * alpha / max(len(prob.effects), 1), 1))
     struct = (residual_structure(cal, prob.conditions, alpha=alpha) if structure
@@ -1020,7 +1021,7 @@ def diagnose(predict, observations, base_params, effects, *, model_se=None,
     status, best, verdict = _verdict(table, cal, fits, struct, sigs, alpha, prob)
     return Diagnosis(table=table, baseline=baseline, calibrated=cal, fits=fits, structure=struct,
                      status=status, best=best, verdict=verdict, alpha=alpha,
-                     threshold_delta_chi2=threshold, n_predict_calls=prob.n_calls,
+                     threshold_delta_chi2=threshold,
                      projected_signatures=pd.DataFrame(sigs, index=prob.keys))
 
 
@@ -1066,6 +1067,11 @@ class _FDNoise:
             T = float(np.sum(vfar[nz] ** 2 / self.var[nz]))
             return (T - nz.sum()) / math.sqrt(2.0 * nz.sum())
         return 0.0
+
+
+def _test_named(prob, cal, noise, rules, item):
+    """:func:`_test_candidate` of ``item``, a (name, Effect) pair."""
+    return _test_candidate(prob, cal, *item, noise, rules)
 
 
 def _test_candidate(prob, cal, name, e, noise, rules):

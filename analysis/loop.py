@@ -83,6 +83,7 @@ if __name__ == "__main__" and signal.getsignal(signal.SIGINT) is not signal.SIG_
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import time
@@ -99,6 +100,7 @@ from analysis.catalog import CANDIDATES, candidates
 from analysis.diagnose import (BaseParameter, calibrate_base, dataset_observations, diagnose,
                                shared_covariance, with_run_sd)
 from analysis.measurements import DatasetError, conditions_file, load_dataset, yield_times_of
+from analysis.processes import in_processes
 from analysis.parameter_space import (ParameterVector, coordinates_of,
                                      reference_parameters)
 from analysis.sweep import parse_key_value
@@ -151,7 +153,7 @@ class LoopSettings:
     extra_effects: tuple = ()        # optional catalog entries diagnosed too
     base: tuple = DEFAULT_BASE       # the base parameters calibrated (over their priors)
     free: tuple = ()                 # (name, lo, hi): parameters calibrated too (--free)
-    n_jobs: int = 1                  # processes for the bootstrap draws (--workers) [-]
+    n_jobs: int = 1                  # processes for the analysis' fits (--workers) [-]
 
     def check(self):
         """ValueError naming the first setting the loop cannot run with."""
@@ -413,8 +415,9 @@ def _stage_row(stage, fit, n_params):
 
 # --------------------------------------------------------------------------- selection
 
-def _null_draw(w, o, base_params, effs, alpha, noise_observables, conditions):
+def _null_draw(w, args, o):
     """One bootstrap draw's diagnosis: (its largest identifiable chi2 gain, an effect named)."""
+    base_params, effs, alpha, noise_observables, conditions = args
     d = diagnose(w.predict, o, base_params, effs, model_se=w.model_se(),
                  crn_correlation=getattr(w.model, "crn_correlation", 0.0),
                  conditions=conditions, alpha=alpha, noise_observables=noise_observables,
@@ -426,19 +429,12 @@ def _null_draw(w, o, base_params, effs, alpha, noise_observables, conditions):
 def _null_draws(w, obs, mu, sig, chol, args, seed, n_draws, n_jobs, progress) -> list:
     """The bootstrap's draws about ``mu`` (noise ``sig``, or ``chol`` @ z where the emulator's
     errors correlate), each diagnosed: [(largest gain, an effect named)]."""
-    from tqdm.auto import tqdm
     rng = np.random.default_rng(seed)
     noise = (lambda z: sig * z) if chol is None else (lambda z: chol @ z)
     draws = [obs.assign(value=mu + noise(rng.standard_normal(len(mu))))
              for _ in range(int(n_draws))]
-    if int(n_jobs) > 1 and len(draws) > 1:
-        from joblib import Parallel, delayed
-        out = Parallel(n_jobs=min(int(n_jobs), len(draws)), return_as="generator")(
-            delayed(_null_draw)(w, o, *args) for o in draws)
-    else:
-        out = (_null_draw(w, o, *args) for o in draws)
-    return list(tqdm(out, total=len(draws), desc="bootstrap draws", unit="draw",
-                     disable=not progress, leave=False))
+    return in_processes(functools.partial(_null_draw, w, args), draws, n_jobs,
+                        "bootstrap draws", "draw", progress)
 
 
 @dataclass(frozen=True)
@@ -557,7 +553,7 @@ def forward_select(model, obs, theta, *, conditions=None, alpha=0.01, max_effect
                         model_se=w.model_se(),
                         crn_correlation=getattr(model, "crn_correlation", 0.0),
                         conditions=conditions,
-                        alpha=alpha, noise_observables=noise_observables,
+                        alpha=alpha, noise_observables=noise_observables, n_jobs=n_jobs,
                         progress="step %d: candidates" % step if progress else None)
         t = diag.table.copy()
         t.insert(0, "step", step)
@@ -1052,15 +1048,26 @@ def confirm_stage(state: LoopState, twin, log=print):
 
 def profile_all(state: LoopState):
     """95 % profile-likelihood intervals of every fitted parameter on the current model and
-    final fit, into ``state.intervals``."""
-    from analysis.diagnose import profile_interval
+    final fit, into ``state.intervals`` - in ``n_jobs`` processes (one parameter each)."""
     w = WithAdded(state.model, state.added, state.theta)
     bp = fitted_parameters(state.model, state.theta, state.added)
-    from tqdm.auto import tqdm
-    for q in tqdm(bp, desc="profile intervals", unit="parameter", disable=not state.progress,
-                  leave=False):
-        state.intervals[q.name] = profile_interval(w.predict, state.obs, bp, q.name,
-                                                   state.final, model_se=w.model_se())
+    names = [q.name for q in bp]
+    one = functools.partial(_profile_one, w, state.obs, bp, state.final)
+    state.intervals.update(zip(names, in_processes(one, names, state.settings.n_jobs,
+                                                   "profile intervals", "parameter",
+                                                   state.progress)))
+
+
+def _profile_one(w, obs, bp, fit, name):
+    """One parameter's profile interval on ``w`` (:func:`profile_all`)."""
+    from analysis.diagnose import profile_interval
+    return profile_interval(w.predict, obs, bp, name, fit, model_se=w.model_se())
+
+
+def _fit_held(w, obs, held) -> dict:
+    """The fit of ``held`` (one parameter pinned) on ``w``: its parameters."""
+    _, fit = calibrate_base(w.predict, obs, held, model_se=w.model_se())
+    return {k: float(v) for k, v in fit.params.items()}
 
 
 def end_points(state: LoopState, done: dict) -> list:
@@ -1075,7 +1082,7 @@ def end_points(state: LoopState, done: dict) -> list:
     cands = candidates()
     inputs = set(state.model.space.base_names) | {k for k in state.added
                                                    if cands[k].kind == "dem"}
-    out = []
+    ends, helds = [], []
     for q in bp:
         iv = state.intervals.get(q.name)
         if iv is None or q.name not in inputs:
@@ -1086,14 +1093,15 @@ def end_points(state: LoopState, done: dict) -> list:
             prev = done.get((q.name, side))
             if is_open or (prev is not None and abs(v - prev) <= END_TOL_WIDTH * width):
                 continue
-            held = [BaseParameter(p.name, float(v), float(v), float(v) + 1e-12 * (p.upper
-                                  - p.lower)) if p.name == q.name else p for p in bp]
-            _, fit = calibrate_base(w.predict, state.obs, held, model_se=w.model_se())
-            at = {p.name: float(fit.params[p.name]) for p in bp}
-            theta = {p.name: at[p.name] for p in state.model.base_params()}
-            out.append((q.name, side, float(v), theta,
-                        {k: at[k] for k in state.added}))
-    return out
+            ends.append((q.name, side, float(v)))
+            helds.append([BaseParameter(p.name, float(v), float(v), float(v) + 1e-12
+                                        * (p.upper - p.lower)) if p.name == q.name else p
+                          for p in bp])
+    fits = in_processes(functools.partial(_fit_held, w, state.obs), helds,
+                        state.settings.n_jobs, "interval ends", "end", state.progress)
+    base = [p.name for p in state.model.base_params()]
+    return [(name, side, v, {k: at[k] for k in base}, {k: at[k] for k in state.added})
+            for (name, side, v), at in zip(ends, fits)]
 
 
 def interval_stage(state: LoopState, twin, log=print):
@@ -1983,7 +1991,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "stl_path=my_jar.stl (docs/apparatus.md), rolling_model, dt_s; not the "
                     "conditions, seeds, effects or the calibrated base parameters")
     ap.add_argument("--workers", type=int, default=2,
-                    help="parallel processes: twin runs and the bootstrap draws [processes] "
+                    help="parallel processes: twin runs and the analysis' independent fits (bootstrap "
+                    "draws, candidates, profile intervals) [processes] "
                     "(default %(default)s)")
     ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
                     help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")

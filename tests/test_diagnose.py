@@ -119,6 +119,20 @@ def test_result_shape_and_projection():
         assert row.loc[e, "footprint"] > 8.0 and row.loc[e, "identifiable"]
 
 
+def test_the_candidates_fitted_in_two_processes_give_the_same_diagnosis():
+    """``n_jobs=2`` fits the candidates in two processes (one candidate each): the same
+    table, fits and verdict as in one."""
+    one = run({"jar_flex": HIDDEN_STRENGTH}, seed=3)
+    two = run({"jar_flex": HIDDEN_STRENGTH}, seed=3, n_jobs=2)
+    assert one.best == two.best == "jar_flex"
+    assert (one.status, one.verdict) == (two.status, two.verdict)
+    pd.testing.assert_frame_equal(one.table, two.table, rtol=1e-9)
+    assert list(one.fits) == list(two.fits) == list(one.projected_signatures)
+    for k, f in one.fits.items():
+        assert f.params == pytest.approx(two.fits[k].params, rel=1e-9)
+    pd.testing.assert_frame_equal(one.projected_signatures, two.projected_signatures)
+
+
 def test_pure_scale_effect_is_fully_absorbed():
     d = run({"grip": 1.0}, seed=2, effects=EFFECTS + [Effect("grip", 0.0, 1.0)])
     row = d.table.set_index("effect").loc["grip"]

@@ -57,7 +57,7 @@ def _diagnosis(bound=True, hatched_gain=12.0):
     t["kind"] = "dem"
     return Diagnosis(table=t, baseline=None, calibrated=None, fits={}, structure=pd.DataFrame(),
                      status="effect", best="induction_period", verdict="", alpha=0.01,
-                     threshold_delta_chi2=9.55, n_predict_calls=0)
+                     threshold_delta_chi2=9.55)
 
 
 def _texts(fig):

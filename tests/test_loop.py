@@ -1,5 +1,6 @@
 """The loop (analysis.loop): stages over one typed state on the one model of the twin (the
 emulator), its command and files; on the FAKE analytic twin (no YADE)."""
+import dataclasses
 import json
 
 import numpy as np
@@ -442,7 +443,6 @@ def test_options_of_the_anchored_model_are_still_accepted(fake_dataset, tmp_path
 
 
 def test_stated_stroke_is_run_and_not_fitted(fake_dataset):
-    import dataclasses
     ds = load_dataset(fake_dataset)
     assert "amplitude_m" in loop.loop_space(ds).base_names
     part = ds.conditions.assign(amplitude_mm=[13.1] + [np.nan] * (len(ds.conditions) - 1))
@@ -570,7 +570,6 @@ def test_films_in_a_dataset_are_tracked_cached_and_read_like_tracks(tmp_path):
     """A dataset with a film instead of a track: the loop's tracking step follows ball and jar
     (against the film's ground truth), reports its quality, caches by content, and the impact
     observables read from the film's track equal those of the true track within their se."""
-    import dataclasses
     from analysis.flights import dataset_flights
     from analysis.measurements import Dataset
     from analysis.synthvideo import Camera, bounce_track, render_video
@@ -631,7 +630,6 @@ def test_assumed_v_sd_fills_only_empty_cells_and_bad_values_are_exit_2(fake_data
     summ = ds.summary.copy()
     summ["v_mean_sd_m_s"] = np.nan                    # a dataset that states no sd ...
     summ.loc[summ.index[0], "v_mean_sd_m_s"] = 0.123  # ... but for one condition
-    import dataclasses
     ds = dataclasses.replace(ds, summary=summ)
     out = loop.with_assumed_v_sd(ds, 0.01).summary
     assert out["v_mean_sd_m_s"].iloc[0] == 0.123
@@ -787,7 +785,6 @@ def test_a_chain_stated_in_video_json_is_applied_to_every_prediction_not_diagnos
     every prediction (the smoothed speed v (1 - f_col tau / 2), f_col and the yields
     untouched), does not diagnose it even when asked, and records it; a stated chain outside
     an effect's bounds is refused before any run."""
-    import dataclasses
     from analysis.hidden import make_hidden_dataset
     from analysis.measurements import SAVGOL_TAU_FRACTION
     ds_dir, _ = make_hidden_dataset(
@@ -1056,7 +1053,6 @@ def test_a_point_that_leans_on_the_emulator_is_refined_before_it_is_final(tmp_pa
     judged sure, with the point unmoved, the confirmation ends after one rerun. The final
     lean is in loop.json and the verdict's sentence follows the rule (leans, no rerun
     confirms)."""
-    import dataclasses
     from analysis.hidden import make_hidden_dataset
     ds_dir, _ = make_hidden_dataset(
         "lean", {}, conditions=NEW_CONDITIONS, replicates=1, seed=3, runner=run_fake_twin,
@@ -1135,6 +1131,14 @@ def test_the_intervals_ends_are_run_and_the_intervals_redone(fake_dataset, tmp_p
     assert state.stair[-1]["chi2"] == state.final.chi2
     done = {(e["parameter"], e["side"]): e["value"] for e in r["ends"]}
     again = loop.end_points(state, done)
+    # the profiles and the ends' fits in two processes: the same intervals and ends as in
+    # one, to the last digit
+    one, one_ends = dict(state.intervals), loop.end_points(state, {})
+    state.settings = dataclasses.replace(s, n_jobs=2)
+    loop.profile_all(state)
+    assert state.intervals == one and len(one_ends) > 0
+    assert loop.end_points(state, {}) == one_ends
+    state.settings, state.intervals = s, one
     for name, side, v, theta, _ in again:
         iv = state.intervals[name]
         assert name in design and theta[name] == pytest.approx(v)

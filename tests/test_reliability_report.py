@@ -244,7 +244,7 @@ def _diagnosis(gains=(30.0, 23.0, 12.0, 2.0), chi2_after=(5.0, 40.0, 8.0, 30.0))
     fits = {n: _fit(11, c, ("a", "b", n)) for n, c in zip(names, chi2_after)}
     d = Diagnosis(table=t, baseline=None, calibrated=_fit(12, 35.0), fits=fits,
                   structure=pd.DataFrame(), status="effect", best="e0", verdict="",
-                  alpha=0.01, threshold_delta_chi2=8.62, n_predict_calls=0)
+                  alpha=0.01, threshold_delta_chi2=8.62)
     need = lw.needed_gains(d, 1.0)
     t["significant"] = t["identifiable"] & (t["delta_chi2"] > need.to_numpy())
     return d
