@@ -98,11 +98,11 @@ from analysis.atomic_dir import OutputError, check_out_dir, output_dir
 from analysis.conditions import ConditionError, label, physics_table
 from analysis.catalog import CANDIDATES, candidates
 from analysis.diagnose import (BaseParameter, calibrate_base, dataset_observations, diagnose,
-                               shared_covariance, with_run_sd)
+                               profile_interval, shared_covariance, with_run_sd)
 from analysis.measurements import DatasetError, conditions_file, load_dataset, yield_times_of
-from analysis.processes import in_processes
 from analysis.parameter_space import (ParameterVector, coordinates_of,
                                      reference_parameters)
+from analysis.processes import in_processes
 from analysis.sweep import parse_key_value
 from analysis.twin_runs import BudgetError, TwinRuns
 
@@ -1060,7 +1060,6 @@ def profile_all(state: LoopState):
 
 def _profile_one(w, obs, bp, fit, name):
     """One parameter's profile interval on ``w`` (:func:`profile_all`)."""
-    from analysis.diagnose import profile_interval
     return profile_interval(w.predict, obs, bp, name, fit, model_se=w.model_se())
 
 
@@ -1991,8 +1990,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "stl_path=my_jar.stl (docs/apparatus.md), rolling_model, dt_s; not the "
                     "conditions, seeds, effects or the calibrated base parameters")
     ap.add_argument("--workers", type=int, default=2,
-                    help="parallel processes: twin runs and the analysis' independent fits (bootstrap "
-                    "draws, candidates, profile intervals) [processes] "
+                    help="parallel processes: twin runs and the analysis' independent fits "
+                    "(bootstrap draws, candidates, profile intervals) [processes] "
                     "(default %(default)s)")
     ap.add_argument("--backend", choices=("local", "serial", "dask"), default="local",
                     help="sweep backend (dask: --scheduler ADDRESS or a local cluster)")
